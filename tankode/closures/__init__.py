@@ -1,0 +1,15 @@
+"""Closures theta = g(s; w) for the four heat transfer coefficients."""
+
+from .base import THETA_NAMES, Closure, ClosureInputs, ConstantClosure
+from .reference import ReferenceClosure, ReferenceCorrelation, first_slosh_frequency_Hz, wave_height_m
+
+__all__ = [
+    "Closure",
+    "ClosureInputs",
+    "ConstantClosure",
+    "ReferenceClosure",
+    "ReferenceCorrelation",
+    "THETA_NAMES",
+    "first_slosh_frequency_Hz",
+    "wave_height_m",
+]

@@ -1,0 +1,73 @@
+"""The closure interface: theta = g(s; w), the four heat transfer coefficients."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor, nn
+
+# Order of the four coefficients in theta (paper: theta_0..theta_3).
+H_VI, H_LI, H_WV, H_WL = range(4)
+THETA_NAMES = ("h_vi_W_m2K", "h_li_W_m2K", "h_wv_W_m2K", "h_wl_W_m2K")
+
+GRAVITY_M_S2 = 9.80665
+
+
+class ClosureInputs(NamedTuple):
+    """What a closure may depend on, per environment (every field shaped ``(env,)``).
+
+    Temperatures in K, densities in kg/m^3, lengths in m, frequency in Hz. ``vapor`` and
+    ``liquid`` are the surrogate's ``PhaseProps`` of each phase (k, mu, cp, beta, ...).
+    """
+
+    T_v_K: Tensor
+    T_l_K: Tensor
+    T_w_K: Tensor
+    T_sat_K: Tensor
+    rho_v_kg_m3: Tensor
+    rho_l_kg_m3: Tensor
+    vapor: NamedTuple
+    liquid: NamedTuple
+    H_l_m: Tensor
+    radius_m: Tensor
+    aspect_ratio: Tensor
+    slosh_amplitude_m: Tensor
+    slosh_frequency_Hz: Tensor
+
+
+class Closure(nn.Module):
+    """Base class: maps ``ClosureInputs`` to ``theta`` of shape ``(env, 4)`` in W/(m^2 K).
+
+    Order: ``[h_vi, h_li, h_wv, h_wl]``: vapour-interface, liquid-interface, wall-vapour,
+    wall-liquid. Implementations must return finite, positive coefficients for any state in
+    the surrogate's domain, and be differentiable w.r.t. their parameters and the state.
+    """
+
+    def forward(self, x: ClosureInputs) -> Tensor:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class ConstantClosure(Closure):
+    """Fixed coefficients (for analytic test problems and sensitivity studies).
+
+    Args:
+        theta_W_m2K: four coefficients ``[h_vi, h_li, h_wv, h_wl]`` in W/(m^2 K), each >= 0.
+        trainable: register them as a parameter (e.g. to identify constant h from data).
+    """
+
+    def __init__(self, theta_W_m2K, trainable: bool = False):
+        super().__init__()
+        theta = torch.as_tensor(theta_W_m2K, dtype=torch.float64)
+        if theta.shape != (4,) or not torch.isfinite(theta).all() or (theta < 0).any():
+            raise ValueError(f"theta_W_m2K must be 4 finite values >= 0 W/(m^2 K), got {theta_W_m2K!r}")
+        if trainable:
+            self.theta = nn.Parameter(theta)
+        else:
+            self.register_buffer("theta", theta)
+
+    def forward(self, x: ClosureInputs) -> Tensor:
+        return self.theta.expand(*x.T_v_K.shape, 4)
+
+
+__all__ = ["Closure", "ClosureInputs", "ConstantClosure", "THETA_NAMES", "H_VI", "H_LI", "H_WV", "H_WL", "GRAVITY_M_S2"]

@@ -1,0 +1,145 @@
+"""A batch of tanks, one per run, set up for one batched ODE: geometry, wall, fluid, inputs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .forcing import Forcing
+from .geometry import stack_geometries
+from .run import Run
+from .schedule import INPUT_NAMES, merge_breakpoints
+from .wall import WallHeatCapacity, resolve_wall_heat_capacity
+
+_I = {name: i for i, name in enumerate(INPUT_NAMES)}
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """Runs of one fluid integrated together as environments of a batched ODE.
+
+    Build it with ``Fleet.from_runs(runs, surrogate)``. Tanks must share one shape (their
+    dimensions may differ); runs may differ in length and inputs.
+
+    Attributes:
+        runs: the runs, one environment each.
+        geometry: batched ``TankGeometry`` with ``(env,)`` dimensions.
+        walls: each tank's ``WallHeatCapacity`` (given or estimated, with a note).
+        fluid: the property surrogate used inside the ODE.
+        reference: the CoolProp backend (initial states, inflow enthalpies).
+    """
+
+    runs: tuple[Run, ...]
+    geometry: object
+    walls: tuple[WallHeatCapacity, ...]
+    fluid: object
+    reference: object
+
+    @staticmethod
+    def from_runs(runs, surrogate=None) -> "Fleet":
+        """Set up the batch; ``surrogate`` defaults to the cached one for the runs' fluid."""
+        from .properties import CoolPropFluid
+
+        runs = (runs,) if isinstance(runs, Run) else tuple(runs)
+        if not runs:
+            raise ValueError("Fleet needs at least one run")
+        fluids = {r.fluid for r in runs}
+        if len(fluids) != 1:
+            raise ValueError(f"all runs of one fleet must share a fluid, got {sorted(fluids)}")
+        fluid_name = runs[0].fluid
+        if surrogate is None:
+            from .properties import load_surrogate
+
+            surrogate = load_surrogate(fluid_name)
+        elif getattr(surrogate, "fluid_name", fluid_name) != fluid_name:
+            raise ValueError(f"surrogate is for {surrogate.fluid_name}, runs are {fluid_name}")
+        geometry = stack_geometries([r.tank.geometry() for r in runs])
+        walls = tuple(
+            resolve_wall_heat_capacity(r.tank.wall_heat_capacity_J_per_K, float(g.wall_area_m2), r.initial.T_w0_K)
+            for r, g in zip(runs, geometry.unbind())
+        )
+        return Fleet(runs, geometry, walls, surrogate, CoolPropFluid(fluid_name))
+
+    @property
+    def n_env(self) -> int:
+        return len(self.runs)
+
+    @property
+    def wall_heat_capacity_J_per_K(self) -> Tensor:
+        """m_w c_w per environment, ``(env,)`` (J/K)."""
+        return torch.tensor([w.value_J_per_K for w in self.walls], dtype=torch.float64)
+
+    @property
+    def t_end_s(self) -> float:
+        return max(r.t_end_s for r in self.runs)
+
+    @property
+    def t0_s(self) -> float:
+        t0 = {r.t0_s for r in self.runs}
+        if len(t0) != 1:
+            raise ValueError(f"runs of one fleet must start at the same time stamp, got {sorted(t0)} s")
+        return t0.pop()
+
+    def initial_state(self) -> Tensor:
+        """State ``(env, 7)`` from each run's initial (p_v, T_v, T_l, T_w, fill ratio), via CoolProp.
+
+        Both phases are placed at the ullage pressure; the liquid's (u, rho) is taken on the
+        liquid branch even if slightly superheated (a metastable state), as measured runs have.
+        """
+        ini = [r.initial for r in self.runs]
+        p = np.array([i.p_v_Pa for i in ini])
+        vap = self.reference.state_pT(p, np.array([i.T_v_K for i in ini]), "vapor")
+        liq = self.reference.state_pT(p, np.array([i.T_l_K for i in ini]), "liquid")
+        V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
+        V_l = V * np.array([i.fill_ratio for i in ini])
+        V_v = V - V_l
+        s0 = np.stack([
+            np.asarray(vap["rho"]) * V_v, np.asarray(liq["rho"]) * V_l, vap["u"], liq["u"],
+            np.array([i.T_w0_K for i in ini]), V_v, V_l,
+        ], axis=-1)
+        return torch.as_tensor(s0, dtype=torch.float64)
+
+    def breakpoints(self, t0: float, t1: float) -> list[float]:
+        """Times in (t0, t1) where any run's inputs change: where the solver must restart."""
+        schedules = [r.inputs for r in self.runs if r.inputs is not None]
+        if not schedules:
+            return []
+        return [float(t) for t in merge_breakpoints(schedules, t0, t1)]
+
+    def inputs_at(self, t_s: float) -> np.ndarray:
+        """Raw schedule values ``(env, n_inputs)`` in force at ``t_s`` (zeros for runs without inputs)."""
+        rows = [np.zeros(len(INPUT_NAMES)) if r.inputs is None else np.asarray(r.inputs.at(t_s)) for r in self.runs]
+        return np.stack(rows)
+
+    def forcing(self, t_s: float, p_v_Pa: Tensor) -> Forcing:
+        """The ``Forcing`` in force from ``t_s`` on, given the ullage pressure ``(env,)`` there.
+
+        Injected vapour enthalpy: CoolProp at the schedule's (p_v_in, T_v_in). Injected liquid:
+        CoolProp at (current ullage pressure, T_l_in); the pressure is frozen at the segment's
+        start (its effect, v dp, is below 0.5 % of the latent heat for a 1 bar change).
+        """
+        u = self.inputs_at(t_s)  # (env, n_inputs)
+        h_v_in = np.zeros(self.n_env)
+        h_l_in = np.zeros(self.n_env)
+        on_v = u[:, _I["mdot_v_in_kg_s"]] > 0
+        if on_v.any():
+            h_v_in[on_v] = self.reference.state_pT(u[on_v, _I["p_v_in_Pa"]], u[on_v, _I["T_v_in_K"]], "vapor")["h"]
+        on_l = u[:, _I["mdot_l_in_kg_s"]] > 0
+        if on_l.any():
+            p = p_v_Pa.detach().numpy()[on_l]
+            h_l_in[on_l] = self.reference.state_pT(p, u[on_l, _I["T_l_in_K"]], "liquid")["h"]
+        t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+        return Forcing(
+            mdot_v_in_kg_s=t(u[:, _I["mdot_v_in_kg_s"]]), h_v_in_J_per_kg=t(h_v_in),
+            mdot_v_out_kg_s=t(u[:, _I["mdot_v_out_kg_s"]]),
+            mdot_l_in_kg_s=t(u[:, _I["mdot_l_in_kg_s"]]), h_l_in_J_per_kg=t(h_l_in),
+            mdot_l_out_kg_s=t(u[:, _I["mdot_l_out_kg_s"]]),
+            slosh_amplitude_m=t(u[:, _I["slosh_amplitude_m"]]), slosh_frequency_Hz=t(u[:, _I["slosh_frequency_Hz"]]),
+            Q_aw_W=t(u[:, _I["Q_aw_W"]]),
+        )
+
+
+__all__ = ["Fleet"]

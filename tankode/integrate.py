@@ -1,0 +1,172 @@
+"""Piecewise integration of the tank model over input segments, with bounded work."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+from torchdiffeq import odeint, odeint_adjoint
+
+from .forcing import Forcing
+from .solver import AdaptiveRK, Adjoint, Backprop, NoGradient
+from .state import STATE_NAMES
+
+
+class SimulationError(RuntimeError):
+    """The solver failed; carries the time (s) and the state where it was last evaluated."""
+
+    def __init__(self, message: str, t_s: float | None = None, state: Tensor | None = None):
+        where = ""
+        if t_s is not None:
+            where = f" at t = {t_s:.6g} s"
+        if state is not None:
+            rows = []
+            for e, row in enumerate(state.detach().reshape(-1, len(STATE_NAMES)).tolist()):
+                rows.append(f"env {e}: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(STATE_NAMES, row)))
+            where += " in state\n  " + "\n  ".join(rows)
+        super().__init__(message + where)
+        self.t_s = t_s
+        self.state = state
+
+
+@dataclass
+class _Counter:
+    n_evals: int = 0
+    last_t: float | None = None
+    last_s: Tensor | None = None
+
+
+class _ScaledRHS(nn.Module):
+    """dz/dt of the scaled state z = s / scale for one segment's constant forcing."""
+
+    def __init__(self, model: nn.Module, forcing: Forcing, scale: Tensor, counter: _Counter, max_evals: int):
+        super().__init__()
+        self.model = model
+        self.forcing = forcing
+        self.scale = scale
+        self.counter = counter
+        self.max_evals = max_evals
+        self._segment_evals = 0
+
+    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+        s = z * self.scale
+        self.counter.n_evals += 1
+        self._segment_evals += 1
+        self.counter.last_t = float(t)
+        self.counter.last_s = s.detach()
+        if self._segment_evals > self.max_evals:
+            raise SimulationError(f"solver exceeded {self.max_evals} right-hand-side evaluations in one segment",
+                                  float(t), s)
+        ds = self.model(t, s, self.forcing)
+        return ds / self.scale
+
+
+def state_scale(s0: Tensor, tank_volume_m3: Tensor) -> Tensor:
+    """Per-environment scales of the 7 state components, ``(env, 7)`` (see ``AdaptiveRK``)."""
+    m = s0[..., 0] + s0[..., 1]
+    du = (s0[..., 2] - s0[..., 3]).abs().clamp_min(1e3)
+    V = tank_volume_m3.expand_as(m)
+    return torch.stack([m, m, du, du, s0[..., 4], V, V], dim=-1).detach()
+
+
+@dataclass(frozen=True)
+class IntegrationStats:
+    """Work done by the solver: right-hand-side evaluations and segments."""
+
+    n_rhs_evals: int
+    n_segments: int
+
+
+def integrate(
+    model: nn.Module,
+    s0: Tensor,
+    segments: list[tuple[float, float]],
+    forcing: Callable[[float, Tensor], Forcing],
+    t_eval: Tensor,
+    scale: Tensor,
+    solver: AdaptiveRK = AdaptiveRK(),
+    gradient=NoGradient(),
+) -> tuple[Tensor, IntegrationStats]:
+    """Integrate ``model`` from ``s0`` across ``segments`` and return states at ``t_eval``.
+
+    The solver restarts at every segment boundary (an input discontinuity), so it never steps
+    across a jump in the forcing.
+
+    Args:
+        model: ``model(t, s, forcing) -> ds/dt``, ``s`` shaped ``(env, 7)``.
+        s0: initial state ``(env, 7)`` at ``segments[0][0]``.
+        segments: contiguous ``(t_start_s, t_end_s)`` covering the horizon; inputs are
+            constant inside each.
+        forcing: ``forcing(t_start_s, s_start) -> Forcing`` for a segment starting in state
+            ``s_start`` ``(env, 7)`` (inflow enthalpies may depend on the tank pressure).
+        t_eval: output times (s), sorted, inside ``[t_start, t_end]``, shape ``(T,)``.
+        scale: ``(env, 7)`` state scales (``state_scale``).
+        solver: an ``AdaptiveRK``.
+        gradient: ``NoGradient()``, ``Backprop()`` or ``Adjoint()``.
+
+    Returns:
+        states ``(env, T, 7)`` at ``t_eval`` and the ``IntegrationStats``.
+
+    Raises:
+        SimulationError: the solver failed or exceeded its evaluation budget; the message
+            names the time and the state.
+    """
+    if not segments:
+        raise ValueError("integrate needs at least one segment")
+    t_start, t_end = segments[0][0], segments[-1][1]
+    t_eval = torch.as_tensor(t_eval, dtype=torch.float64)
+    if t_eval.dim() != 1 or len(t_eval) == 0:
+        raise ValueError("t_eval must be a non-empty 1-D tensor of times in s")
+    if (t_eval[1:] <= t_eval[:-1]).any():
+        raise ValueError("t_eval must be strictly increasing")
+    if t_eval[0] < t_start - 1e-9 or t_eval[-1] > t_end + 1e-9:
+        raise ValueError(f"t_eval must lie in [{t_start}, {t_end}] s, got [{float(t_eval[0])}, {float(t_eval[-1])}]")
+    for (a0, a1), (b0, _) in zip(segments[:-1], segments[1:]):
+        if a1 != b0:
+            raise ValueError(f"segments must be contiguous: one ends at {a1} s, the next starts at {b0} s")
+
+    counter = _Counter()
+    outputs: list[Tensor] = []
+    if float(t_eval[0]) <= t_start + 1e-9:
+        outputs.append(s0[:, None, :])
+    s = s0
+    grad_ctx = torch.no_grad() if isinstance(gradient, NoGradient) else torch.enable_grad()
+    with grad_ctx:
+        for t0, t1 in segments:
+            inner = t_eval[(t_eval > t0 + 1e-9) & (t_eval < t1 - 1e-9)]
+            ts = torch.cat([torch.tensor([t0], dtype=torch.float64), inner, torch.tensor([t1], dtype=torch.float64)])
+            func = _ScaledRHS(model, forcing(t0, s.detach()), scale, counter, solver.max_rhs_evals)
+            z0 = s / scale
+            kwargs = dict(rtol=solver.rtol, atol=solver.atol, method=solver.method)
+            try:
+                if isinstance(gradient, Adjoint):
+                    z = odeint_adjoint(
+                        func, z0, ts, **kwargs,
+                        adjoint_rtol=gradient.rtol or solver.rtol, adjoint_atol=gradient.atol or solver.atol,
+                        adjoint_params=tuple(p for p in model.parameters() if p.requires_grad),
+                    )
+                elif isinstance(gradient, (Backprop, NoGradient)):
+                    z = odeint(func, z0, ts, **kwargs)
+                else:
+                    raise TypeError(f"gradient must be NoGradient(), Backprop() or Adjoint(), got {gradient!r}")
+            except SimulationError:
+                raise
+            except (AssertionError, RuntimeError, ValueError) as err:
+                raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}",
+                                      counter.last_t, counter.last_s) from err
+            traj = (z * scale).permute(1, 0, 2)  # (env, len(ts), 7)
+            if not torch.isfinite(traj).all():
+                raise SimulationError(f"non-finite state in segment [{t0:.6g}, {t1:.6g}] s", counter.last_t, counter.last_s)
+            outputs.append(traj[:, 1:-1])
+            if bool(((t_eval - t1).abs() < 1e-9).any()):
+                outputs.append(traj[:, -1:])
+            s = traj[:, -1]
+    states = torch.cat(outputs, dim=1)
+    if states.shape[1] != len(t_eval):
+        raise AssertionError(f"internal: {states.shape[1]} outputs for {len(t_eval)} requested times")
+    return states, IntegrationStats(counter.n_evals, len(segments))
+
+
+__all__ = ["integrate", "SimulationError", "IntegrationStats", "state_scale"]

@@ -1,0 +1,173 @@
+"""The 0D three-control-volume tank model: ullage vapour, liquid, wall (paper, section 2).
+
+Balances, for the state ``s = [m_v, m_l, u_v, u_l, T_w, V_v, V_l]`` (``tankode.state``) and a
+common pressure ``p`` (the ullage pressure; hydrostatics neglected)::
+
+    dm_v/dt      = mdot_v_in - mdot_v_out + J
+    dm_l/dt      = mdot_l_in - mdot_l_out - J
+    d(m_v u_v)/dt = mdot_v_in h_v_in - mdot_v_out h_v + J h_v,sat + Q_wv - Q_vi - p dV_v/dt
+    d(m_l u_l)/dt = mdot_l_in h_l_in - mdot_l_out h_l - J h_l,sat + Q_wl - Q_li - p dV_l/dt
+    C_w dT_w/dt  = Q_aw - Q_wv - Q_wl
+    dV_l/dt = -dV_v/dt = W
+
+with the heat flows ``Q_vi = h_vi A_i (T_v - T_sat)``, ``Q_li = h_li A_i (T_l - T_sat)`` (into
+the interface), ``Q_wv = h_wv A_wv (T_w - T_v)``, ``Q_wl = h_wl A_wl (T_w - T_l)`` (out of the
+wall), ``T_sat = T_sat(p)`` and ``theta = (h_vi, h_li, h_wv, h_wl) = g(s; w)`` from the closure.
+
+Phase change. The interface is massless and held at saturation, so it stores no energy: the
+heat reaching it, ``Q_vi + Q_li``, evaporates liquid at the rate ``J = (Q_vi + Q_li) / L_v``
+with ``L_v = h_v,sat - h_l,sat``. Evaporated mass leaves the liquid at ``h_l,sat`` and enters
+the vapour at ``h_v,sat``; condensate (``J < 0``) leaves the vapour at ``h_v,sat`` and enters
+the liquid at ``h_l,sat``. Then ``d/dt (m_v u_v + m_l u_l + C_w T_w)`` equals exactly the
+enthalpy carried by the external flows plus ``Q_aw``: total mass and energy are conserved.
+
+Departures from the printed paper: (1) the sign of the phase-change flux: the printed balance
+makes heat arriving at the interface condense vapour; here it evaporates liquid (``J > 0``),
+so a superheated ullage over a subcooled liquid condenses only when the liquid side draws more
+heat than the vapour side brings. (2) The enthalpy the condensate carries: the printed form
+lets the phase-change mass carry the bulk phase's enthalpy on one side and a saturation
+enthalpy on the other, which creates or destroys energy at the interface; here both sides use
+the saturation enthalpies so the interface energy balance closes.
+
+Volume split. Both phases share ``p``, so ``W = dV_l/dt`` is the rate that keeps
+``dp_l/dt = dp_v/dt`` given the surrogate's ``dp/du`` and ``dp/drho`` of each phase (an index
+reduction of the algebraic constraint ``p_l(u_l, rho_l) = p_v(u_v, rho_v)``). This needs no
+liquid compressibility parameter and keeps ``V_v + V_l`` equal to the tank volume exactly.
+Only the derivative of the constraint is enforced, so a constant offset between the
+surrogate's liquid and vapour pressures (its fitting error) does not perturb the dynamics.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor, nn
+
+from .closures.base import Closure, ClosureInputs
+from .forcing import Forcing
+from .state import N_STATE
+
+
+class Fluxes(NamedTuple):
+    """Every term of the balances at one state, each ``(env,)``, SI units (W, kg/s, Pa, K, m)."""
+
+    p_v_Pa: Tensor
+    T_v_K: Tensor
+    T_l_K: Tensor
+    T_sat_K: Tensor
+    H_l_m: Tensor
+    theta_W_m2K: Tensor  # (env, 4)
+    Q_vi_W: Tensor
+    Q_li_W: Tensor
+    Q_wv_W: Tensor
+    Q_wl_W: Tensor
+    J_evap_kg_s: Tensor
+    h_v_J_per_kg: Tensor
+    h_l_J_per_kg: Tensor
+    h_vsat_J_per_kg: Tensor
+    h_lsat_J_per_kg: Tensor
+
+
+class TankModel(nn.Module):
+    """Right-hand side f(t, s; theta) of the tank model, batched over environments.
+
+    Args:
+        fluid: a property surrogate with ``vapor(u, rho)`` and ``liquid(u, rho)`` returning
+            ``PhaseProps`` (``tankode.properties.Surrogate``).
+        geometry: a ``TankGeometry`` whose dimensions are 0-d or shaped ``(env,)``.
+        closure: the closure module theta = g(s; w).
+        wall_heat_capacity_J_per_K: m_w c_w, scalar or ``(env,)`` (J/K).
+
+    Call ``model(t, s, forcing)`` with ``s`` of shape ``(env, 7)`` to get ``ds/dt`` ``(env, 7)``.
+    """
+
+    def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K):
+        super().__init__()
+        self.fluid = fluid
+        self.geometry = geometry
+        self.closure = closure
+        cw = torch.as_tensor(wall_heat_capacity_J_per_K, dtype=torch.float64)
+        if not torch.isfinite(cw).all() or (cw <= 0).any():
+            raise ValueError(f"wall_heat_capacity_J_per_K must be positive and finite, got {cw}")
+        self.register_buffer("wall_heat_capacity_J_per_K", cw)
+
+    def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:
+        """All heat and mass flows at state ``s`` ``(env, 7)``; also the two phases' properties."""
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        rho_v = m_v / V_v
+        rho_l = m_l / V_l
+        pv = self.fluid.vapor(u_v, rho_v)
+        pl = self.fluid.liquid(u_l, rho_l)
+        p = pv.p
+        g = self.geometry
+        H_l = g.level_at_volume(V_l)
+        A_i = g.interface_area_m2(H_l)
+        A_wl, A_wv = g.wetted_areas_m2(H_l)
+        T_sat = pv.T_sat
+        theta = self.closure(
+            ClosureInputs(
+                T_v_K=pv.T, T_l_K=pl.T, T_w_K=T_w, T_sat_K=T_sat, rho_v_kg_m3=rho_v, rho_l_kg_m3=rho_l,
+                vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),
+                aspect_ratio=g.aspect_ratio.expand_as(H_l),
+                slosh_amplitude_m=forcing.slosh_amplitude_m, slosh_frequency_Hz=forcing.slosh_frequency_Hz,
+            )
+        )
+        h_vi, h_li, h_wv, h_wl = theta.unbind(-1)
+        Q_vi = h_vi * A_i * (pv.T - T_sat)
+        Q_li = h_li * A_i * (pl.T - T_sat)
+        Q_wv = h_wv * A_wv * (T_w - pv.T)
+        Q_wl = h_wl * A_wl * (T_w - pl.T)
+        J = (Q_vi + Q_li) / (pv.h_vsat - pv.h_lsat)
+        f = Fluxes(
+            p_v_Pa=p, T_v_K=pv.T, T_l_K=pl.T, T_sat_K=T_sat, H_l_m=H_l, theta_W_m2K=theta,
+            Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, J_evap_kg_s=J,
+            h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
+            h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
+        )
+        return f, pv, pl
+
+    def forward(self, t: Tensor, s: Tensor, forcing: Forcing) -> Tensor:
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        f, pv, pl = self.fluxes(s, forcing)
+        fc = forcing
+        p, J = f.p_v_Pa, f.J_evap_kg_s
+        dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
+        dm_l = fc.mdot_l_in_kg_s - fc.mdot_l_out_kg_s - J
+        # Energy inflow to each phase except the volume work -p dV/dt.
+        e_v = (fc.mdot_v_in_kg_s * fc.h_v_in_J_per_kg - fc.mdot_v_out_kg_s * f.h_v_J_per_kg
+               + J * f.h_vsat_J_per_kg + f.Q_wv_W - f.Q_vi_W)
+        e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
+               - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W)
+        # dp/dt of each phase is affine in W = dV_l/dt: a + b W (see module docstring).
+        rho_v = m_v / V_v
+        rho_l = m_l / V_l
+        a_v = pv.dp_du * (e_v - u_v * dm_v) / m_v + pv.dp_drho * dm_v / V_v
+        b_v = pv.dp_du * p / m_v + pv.dp_drho * rho_v / V_v
+        a_l = pl.dp_du * (e_l - u_l * dm_l) / m_l + pl.dp_drho * dm_l / V_l
+        b_l = -pl.dp_du * p / m_l - pl.dp_drho * rho_l / V_l
+        W = (a_v - a_l) / (b_l - b_v)
+        du_v = (e_v + p * W - u_v * dm_v) / m_v
+        du_l = (e_l - p * W - u_l * dm_l) / m_l
+        dT_w = (fc.Q_aw_W - f.Q_wv_W - f.Q_wl_W) / self.wall_heat_capacity_J_per_K
+        return torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
+
+    def observe(self, s: Tensor) -> Tensor:
+        """Observation operator h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]), shape ``(..., 5)``."""
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        pv = self.fluid.vapor(u_v, m_v / V_v)
+        pl = self.fluid.liquid(u_l, m_l / V_l)
+        H_l = self.geometry.level_at_volume(V_l)
+        return torch.stack([pv.p, pv.T, pl.T, T_w, H_l], dim=-1)
+
+    def total_energy_J(self, s: Tensor) -> Tensor:
+        """m_v u_v + m_l u_l + C_w T_w (J) for ``s`` shaped ``(env, 7)`` or ``(env, time, 7)``."""
+        cw = self.wall_heat_capacity_J_per_K
+        if cw.dim() == 1 and s.dim() == 3:
+            cw = cw[:, None]  # (env, 1) against (env, time)
+        return s[..., 0] * s[..., 2] + s[..., 1] * s[..., 3] + cw * s[..., 4]
+
+
+assert N_STATE == 7
+
+__all__ = ["TankModel", "Fluxes"]

@@ -1,0 +1,70 @@
+"""Integration strategies: the ODE solver and how gradients flow through it."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+_METHODS = ("dopri5", "bosh3", "dopri8", "adaptive_heun")
+
+
+@dataclass(frozen=True)
+class AdaptiveRK:
+    """An adaptive Runge-Kutta solver from torchdiffeq on the scaled state.
+
+    The state is integrated as ``z = s / scale`` with per-environment scales (total mass for
+    the masses, the initial latent-heat-sized energy gap |u_v - u_l| for the energies, the
+    initial wall temperature, the tank volume for the volumes), so one ``rtol``/``atol`` pair
+    means the same thing for every component.
+
+    Attributes:
+        method: torchdiffeq adaptive method; dopri5 (5th order, FSAL) is the default because
+            the model is not stiff at the tolerances the studies need.
+        rtol: relative tolerance (dimensionless).
+        atol: absolute tolerance on the scaled state (dimensionless, ~ relative to the scale).
+        max_rhs_evals: hard bound on right-hand-side evaluations per segment, so a solver
+            that stalls fails with the time and state instead of hanging.
+    """
+
+    method: str = "dopri5"
+    rtol: float = 1e-7
+    atol: float = 1e-9
+    max_rhs_evals: int = 200_000
+
+    def __post_init__(self):
+        if self.method not in _METHODS:
+            raise ValueError(f"AdaptiveRK.method must be one of {_METHODS}, got {self.method!r}")
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 < v < 1):
+                raise ValueError(f"AdaptiveRK.{name} must be in (0, 1), got {v}")
+        if self.max_rhs_evals < 10:
+            raise ValueError(f"AdaptiveRK.max_rhs_evals must be >= 10, got {self.max_rhs_evals}")
+
+
+@dataclass(frozen=True)
+class NoGradient:
+    """Forward only (no autograd graph): simulation, prediction, benchmarks."""
+
+
+@dataclass(frozen=True)
+class Backprop:
+    """Differentiate through the solver's operations (``torchdiffeq.odeint``).
+
+    Exact gradient of the discrete solution; memory grows with the number of solver steps.
+    """
+
+
+@dataclass(frozen=True)
+class Adjoint:
+    """Continuous adjoint (``torchdiffeq.odeint_adjoint``): memory independent of the step count.
+
+    Attributes:
+        rtol, atol: tolerances of the backward (adjoint) solve; None = the forward ones.
+    """
+
+    rtol: float | None = None
+    atol: float | None = None
+
+
+__all__ = ["AdaptiveRK", "NoGradient", "Backprop", "Adjoint"]

@@ -1,0 +1,1 @@
+"""Assimilation loops, the bounded L-BFGS wrapper, logging and checkpoints."""
