@@ -604,8 +604,9 @@ class HorizontalCylinder(TankGeometry):
         c = 2.0 * math.pi * torch.where(upper, 1.0 - frac, frac)
         theta = (6.0 * c) ** (1.0 / 3.0)  # theta^3/6 <= theta - sin: starts left of the root
         for _ in range(_N_NEWTON_HCYL):
-            slope = 2.0 * torch.sin(0.5 * theta) ** 2
-            step = torch.where(slope > 0.0, (_theta_minus_sin(theta) - c) / torch.where(slope > 0.0, slope, 1.0), 0.0)
+            slope = 2.0 * torch.sin(0.5 * theta) ** 2  # 1 - cos(theta) without cancellation
+            moving = slope > 0.0  # only theta = 0 (empty/full tank, c = 0) has zero slope
+            step = torch.where(moving, (_theta_minus_sin(theta) - c) / torch.where(moving, slope, 1.0), 0.0)
             # after the first (overshooting) step the iterate is right of the root and convexity
             # makes Newton monotone; pi is always right of the root for c <= pi
             theta = torch.clamp(theta - step, min=0.0, max=math.pi)
@@ -700,8 +701,8 @@ def geometry_from_spec(spec: Mapping[str, Any]) -> TankGeometry:
 
     Args:
         spec: ``{"shape": <name>, <dimension keys>: float, ...}``; ``volume_m3`` (cross-checked
-            against the shape's volume within 1 %) and ``wall_heat_capacity_J_per_K`` (thermal
-            model, ignored here) may also be present.
+            against the shape's volume within 1 %; None = not stated) and
+            ``wall_heat_capacity_J_per_K`` (thermal model, ignored here) may also be present.
     Returns:
         An unbatched :class:`TankGeometry` of the named shape.
     Raises:
@@ -729,7 +730,7 @@ def geometry_from_spec(spec: Mapping[str, Any]) -> TankGeometry:
             raise ValueError(f"{shape}: spec is missing key {name!r}; allowed range {d.allowed_range()}")
         values[name] = _spec_number(shape, d, name, spec[name])
     geometry = cls(**values)
-    if "volume_m3" in spec:
+    if spec.get("volume_m3") is not None:  # null means "not stated" in the interchange format
         v_spec = _spec_number(shape, None, "volume_m3", spec["volume_m3"])
         v_shape = float(geometry.volume_m3)
         if abs(v_shape - v_spec) > _SPEC_VOLUME_RTOL * v_spec:

@@ -28,11 +28,16 @@ F64 = torch.float64
 # oblate (k > 1), hemispherical (k = 1), prolate (k < 1) and zero-straight-length branches.
 CASES = {
     "paper_vcyl": (VerticalCylinder, dict(radius_m=0.9, height_m=2.2)),
-    "mhtb_heads": (VerticalCylinderEllipticalHeads, dict(radius_m=1.525, cylinder_length_m=1.4593, head_aspect=2.0)),
-    "hemi_heads": (VerticalCylinderEllipticalHeads, dict(radius_m=0.8, cylinder_length_m=1.0, head_aspect=1.0)),
-    "shallow_heads": (VerticalCylinderEllipticalHeads, dict(radius_m=1.0, cylinder_length_m=0.3, head_aspect=4.0)),
-    "prolate_heads": (VerticalCylinderEllipticalHeads, dict(radius_m=0.6, cylinder_length_m=0.2, head_aspect=0.5)),
-    "oblate_spheroid": (VerticalCylinderEllipticalHeads, dict(radius_m=0.9, cylinder_length_m=0.0, head_aspect=1.6)),
+    "mhtb_heads": (VerticalCylinderEllipticalHeads,
+                   dict(radius_m=1.525, cylinder_length_m=1.4593, head_aspect=2.0)),
+    "hemi_heads": (VerticalCylinderEllipticalHeads,
+                   dict(radius_m=0.8, cylinder_length_m=1.0, head_aspect=1.0)),
+    "shallow_heads": (VerticalCylinderEllipticalHeads,
+                      dict(radius_m=1.0, cylinder_length_m=0.3, head_aspect=4.0)),
+    "prolate_heads": (VerticalCylinderEllipticalHeads,
+                      dict(radius_m=0.6, cylinder_length_m=0.2, head_aspect=0.5)),
+    "oblate_spheroid": (VerticalCylinderEllipticalHeads,
+                        dict(radius_m=0.9, cylinder_length_m=0.0, head_aspect=1.6)),
     "sphere": (Sphere, dict(radius_m=0.7)),
     "hcyl": (HorizontalCylinder, dict(radius_m=1.1, cylinder_length_m=3.0)),
 }
@@ -109,7 +114,8 @@ def ref_wetted(name, h):
         return 2 * math.pi * math.sqrt(max(r2, 0.0) + rr**2)
 
     bottom = math.pi * R**2 if cls is VerticalCylinder else 0.0
-    return bottom + integrate.quad(ds, 0.0, h, points=breakpoints(name), epsabs=1e-13, epsrel=1e-12, limit=200)[0]
+    zone = integrate.quad(ds, 0.0, h, points=breakpoints(name), epsabs=1e-13, epsrel=1e-12, limit=200)[0]
+    return bottom + zone
 
 
 def spheroid_area(R, a):
@@ -200,7 +206,8 @@ def test_sphere_and_horizontal_cylinder_half_volume_at_radius():
 
 def test_mhtb_volume():
     g = geometry_from_spec(
-        {"shape": "vertical_cylinder_elliptical_heads", "radius_m": 1.525, "cylinder_length_m": 1.4593, "head_aspect": 2.0}
+        {"shape": "vertical_cylinder_elliptical_heads", "radius_m": 1.525, "cylinder_length_m": 1.4593,
+         "head_aspect": 2.0}
     )
     assert g.volume_m3.item() == pytest.approx(18.09, rel=1e-3)
     assert g.height_m.item() == pytest.approx(1.4593 + 1.525, rel=1e-14)
@@ -340,6 +347,25 @@ def test_derivatives_at_half_height(name):
     assert dv.item() == pytest.approx(ref_interface(name, h.item()), rel=1e-12)
 
 
+def test_spheroid_zone_series_branch():
+    # asin(sqrt u)/sqrt u (u > 0) and asinh(sqrt -u)/sqrt -u (u < 0) switch to a Taylor series for
+    # |u| < 0.01; compare with a 40-term series C(2n, n) u^n / (4^n (2n + 1)) summed in float64.
+    from tankode.geometry import _asin_over_x
+
+    u = np.linspace(-0.03, 0.03, 601)
+    ref = sum(math.comb(2 * n, n) / (4**n * (2 * n + 1)) * u**n for n in range(40))
+    got = _asin_over_x(torch.tensor(u, dtype=F64)).numpy()
+    assert np.allclose(got, ref, rtol=2e-16 * 8, atol=0)
+
+
+def test_level_clamping_gradient_at_and_beyond_the_ends():
+    # at H = 0 and H = height the one-sided slope is kept in full; beyond the ends it is 0
+    g = VerticalCylinder(0.9, 2.2)
+    h = torch.tensor([0.0, 2.2, -0.1, 2.5], dtype=F64, requires_grad=True)
+    (dv,) = torch.autograd.grad(g.volume_at_level(h).sum(), h)
+    assert dv.tolist() == pytest.approx([math.pi * 0.81, math.pi * 0.81, 0.0, 0.0], rel=1e-14)
+
+
 def test_level_derivative_wrt_radius_is_implicit_function_derivative():
     # vertical cylinder: H = V / (pi R^2) -> dH/dR = -2 V / (pi R^3)
     r = torch.tensor(0.9, dtype=F64, requires_grad=True)
@@ -354,7 +380,8 @@ def test_broadcasting_rule():
     g = stack_geometries([Sphere(1.0), Sphere(2.0)])
     assert g.volume_at_level(0.5).shape == (2,)  # 0-d level for every tank
     per_tank = g.volume_at_level(torch.tensor([0.5, 1.0], dtype=F64))
-    assert torch.allclose(per_tank, torch.stack([Sphere(1.0).volume_at_level(0.5), Sphere(2.0).volume_at_level(1.0)]))
+    expected = torch.stack([Sphere(1.0).volume_at_level(0.5), Sphere(2.0).volume_at_level(1.0)])
+    assert torch.allclose(per_tank, expected, rtol=1e-15, atol=0)
     h = torch.tensor([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]], dtype=F64)
     out = g.interface_area_m2(h)
     assert out.shape == (2, 3)
@@ -412,6 +439,8 @@ def test_spec_roundtrip_and_passthrough_keys():
     spec = {"shape": "vertical_cylinder", "radius_m": 0.9, "height_m": 2.2, "wall_heat_capacity_J_per_K": 1e5,
             "volume_m3": math.pi * 0.81 * 2.2 * 1.009}
     assert isinstance(geometry_from_spec(spec), TankGeometry)  # 0.9 % off: accepted
+    spec.update(volume_m3=None, wall_heat_capacity_J_per_K=None)  # null = not stated
+    assert isinstance(geometry_from_spec(spec), VerticalCylinder)
 
 
 def test_spec_unknown_shape_lists_valid_shapes():

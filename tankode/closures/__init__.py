@@ -1,12 +1,17 @@
 """Closures theta = g(s; w) for the four heat transfer coefficients."""
 
 from .base import THETA_NAMES, Closure, ClosureInputs, ConstantClosure
+from .mlp import FEATURE_NAMES, MLPClosure, MLPConfig, mlp_features
 from .reference import ReferenceClosure, ReferenceCorrelation, first_slosh_frequency_Hz, wave_height_m
 
 __all__ = [
     "Closure",
     "ClosureInputs",
     "ConstantClosure",
+    "FEATURE_NAMES",
+    "MLPClosure",
+    "MLPConfig",
+    "mlp_features",
     "ReferenceClosure",
     "ReferenceCorrelation",
     "THETA_NAMES",

@@ -1,0 +1,116 @@
+"""Closures: the reference correlation's limits and the MLP agent's guarantees."""
+
+import math
+
+import pytest
+import torch
+
+from tankode.analytic import AnalyticFluid
+from tankode.closures import ClosureInputs, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation
+from tankode.closures.reference import XI_11, first_slosh_frequency_Hz, wave_height_m
+
+R = 0.9
+
+
+def _inputs(T_v=30.0, T_l=20.0, T_w=25.0, A0=0.0, f=0.0, H_l=1.4, n=1):
+    fluid = AnalyticFluid()
+    c = fluid.params
+    u_v = torch.full((n,), c.L_J_per_kg + c.cv_v_J_per_kgK * (T_v - c.T0_K), dtype=torch.float64)
+    u_l = torch.full((n,), c.c_l_J_per_kgK * (T_l - c.T0_K), dtype=torch.float64)
+    rho_v = torch.full((n,), 3e5 / (c.R_J_per_kgK * T_v), dtype=torch.float64)
+    rho_l = torch.full((n,), c.rho_l0_kg_m3 * (1 + 2e5 / c.bulk_modulus_Pa), dtype=torch.float64)
+    pv, pl = fluid.vapor(u_v, rho_v), fluid.liquid(u_l, rho_l)
+    full = lambda v: torch.full((n,), float(v), dtype=torch.float64)  # noqa: E731
+    return ClosureInputs(pv.T, pl.T, full(T_w), pv.T_sat, rho_v, rho_l, pv, pl, full(H_l), full(R), full(R / 2.2),
+                         full(A0), full(f))
+
+
+def test_reference_at_rest_and_stably_stratified_is_the_conduction_floor():
+    x = _inputs(T_v=30.0, T_l=18.0)  # vapour above, liquid below the saturation temperature: stable both sides
+    assert float(x.T_sat_K) > 18.5 and float(x.T_sat_K) < 29.0
+    c = ReferenceCorrelation()
+    h = ReferenceClosure(c)(x)[0]
+    assert h[0].item() == pytest.approx(c.nu_0 * x.vapor.k.item() / R, rel=1e-6)
+    assert h[1].item() == pytest.approx(c.nu_0 * x.liquid.k.item() / R, rel=1e-6)
+    assert h[2].item() == pytest.approx(20 * h[0].item(), rel=1e-12)
+    assert h[3].item() == pytest.approx(10 * h[1].item(), rel=1e-12)
+
+
+def test_reference_natural_convection_only_when_unstable():
+    stable = ReferenceClosure()(_inputs(T_l=18.0))[0, 1]
+    x = _inputs(T_l=27.0)  # liquid warmer than the interface: cooled from above, convects
+    unstable = ReferenceClosure()(x)[0, 1]
+    c = ReferenceCorrelation()
+    nu = x.liquid.mu / x.rho_l_kg_m3
+    alpha = x.liquid.k / (x.rho_l_kg_m3 * x.liquid.cp)
+    ra = 9.80665 * x.liquid.beta * (x.T_l_K - x.T_sat_K) * R**3 / (nu * alpha)
+    expected = (c.nu_0 + c.c_nat * ra ** (1 / 3)) * x.liquid.k / R
+    # 1e-3: the switch and |dT| are smoothed over 0.05 K, which shifts Ra^(1/3) by ~2e-4 at dT = 1.4 K.
+    assert unstable.item() == pytest.approx(expected.item(), rel=1e-3)
+    assert unstable > 10 * stable
+
+
+def test_wave_height_limits():
+    Hl = torch.tensor(1.43, dtype=torch.float64)
+    Rt = torch.tensor(R, dtype=torch.float64)
+    f11 = first_slosh_frequency_Hz(Rt, Hl)
+    # Deep-liquid limit of the natural frequency: sqrt(g xi / R) / 2 pi.
+    assert f11.item() == pytest.approx(math.sqrt(9.80665 * XI_11 / R * math.tanh(XI_11 * 1.43 / R)) / (2 * math.pi))
+    A0 = torch.tensor(0.01, dtype=torch.float64)
+    gain = 2 * XI_11 / (XI_11**2 - 1) * math.tanh(XI_11 * 1.43 / R)
+    # At resonance the response is bounded by the damping: b = A0 gain / (2 zeta).
+    assert wave_height_m(A0, f11, Rt, Hl, 0.05).item() == pytest.approx(0.01 * gain / 0.1, rel=1e-12)
+    assert wave_height_m(A0, 0.0 * f11, Rt, Hl, 0.05).item() == 0.0
+    # Far above resonance the tank moves under a still liquid: b -> A0 gain.
+    assert wave_height_m(A0, 100 * f11, Rt, Hl, 0.05).item() == pytest.approx(0.01 * gain, rel=1e-3)
+
+
+def test_sloshing_raises_interface_coefficients_in_the_expected_range():
+    f = 0.8 * first_slosh_frequency_Hz(torch.tensor(R), torch.tensor(1.4)).item()
+    rest = ReferenceClosure()(_inputs())[0]
+    slosh = ReferenceClosure()(_inputs(A0=0.01, f=f))[0]
+    assert (slosh > 3 * rest).all()
+    # Calibrated to O(10-100) W/(m^2 K) for moderate sloshing (module docstring), not the raw-Re_s 1e4.
+    assert 5.0 < slosh[1].item() < 300.0
+
+
+def test_mlp_has_484_weights_and_starts_at_h_ref():
+    cfg = MLPConfig()
+    mlp = MLPClosure(cfg)
+    assert sum(p.numel() for p in mlp.parameters()) == 484
+    h = mlp(_inputs(A0=0.01, f=0.6, n=3))
+    assert torch.allclose(h, torch.tensor(cfg.h_ref_W_m2K, dtype=torch.float64).expand(3, 4), rtol=1e-14)
+
+
+def test_mlp_outputs_stay_bounded_for_any_weights():
+    cfg = MLPConfig()
+    mlp = MLPClosure(cfg)
+    with torch.no_grad():
+        for p in mlp.parameters():
+            p.normal_(0, 50.0)
+    h = mlp(_inputs(A0=0.05, f=2.0, T_v=45.0, T_w=40.0, n=4))
+    lo = torch.tensor(cfg.h_ref_W_m2K, dtype=torch.float64) * math.exp(-cfg.span)
+    hi = torch.tensor(cfg.h_ref_W_m2K, dtype=torch.float64) * math.exp(cfg.span)
+    assert torch.isfinite(h).all() and (h >= lo * (1 - 1e-12)).all() and (h <= hi * (1 + 1e-12)).all()
+
+
+def test_mlp_gradcheck_wrt_weights():
+    mlp = MLPClosure(MLPConfig(seed=3))
+    with torch.no_grad():
+        for p in mlp.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    x = _inputs(A0=0.01, f=0.6, n=2)
+    params = tuple(mlp.parameters())
+
+    def f(*ps):
+        out = torch.func.functional_call(mlp, {n: p for (n, _), p in zip(mlp.named_parameters(), ps)}, (x,))
+        return out
+
+    torch.autograd.gradcheck(f, tuple(p.detach().clone().requires_grad_(True) for p in params))
+
+
+def test_mlp_config_validation():
+    with pytest.raises(ValueError, match="h_ref_W_m2K"):
+        MLPConfig(h_ref_W_m2K=(1.0, -1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="span"):
+        MLPConfig(span=0.0)

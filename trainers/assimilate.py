@@ -1,0 +1,301 @@
+"""Real-time assimilation: update the agent every window as data stream in (paper, section 5.3).
+
+The data of a fleet arrive as a stream. Every ``window_s`` seconds the agent (the MLP closure)
+is updated with ``iters`` bounded L-BFGS iterations on the cost J over
+
+* ``mode="fixed"``: only the newest window ``[t_k, t_k + window_s]``, or
+* ``mode="growing"``: all data so far ``[t_0, t_k + window_s]``.
+
+Initial state of each window. Growing windows always start from the run's initial state (the
+metadata's p, T and fill). A fixed window k > 0 starts from the state at ``t_k`` of the
+simulation of window k-1 with the agent as updated on window k-1: the model carries its own
+state forward, so no noisy measurement is ever inverted into a state, and the state the next
+window starts from is consistent with the physics the agent has learned.
+
+One L-BFGS per window: when a window's data arrive the objective changes, so the curvature
+pairs of the previous window are no secant pairs of the new objective; the optimiser (history,
+latent variables, batch generator seeded by ``seed`` and the window index) is created afresh
+for each window from the current weights. A checkpoint after each window (weights, optimiser
+state, the next window's initial state, configuration, reports) therefore resumes exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from tankode.closures import MLPClosure, MLPConfig
+from tankode.fleet import Fleet
+from tankode.integrate import integrate, state_scale
+from tankode.model import TankModel
+from tankode.solver import AdaptiveRK, Adjoint, Backprop
+
+from .checkpoint import load_checkpoint, save_checkpoint
+from .cost import Window, cost, cost_terms
+from .lbfgs import BoundedLBFGS, MiniBatch, ResetHistory, uniform_box
+
+_GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop}
+
+
+@dataclass(frozen=True)
+class AssimilationConfig:
+    """How the agent is trained from a stream.
+
+    Attributes:
+        window_s: window length (s); the paper's 10 minutes.
+        mode: "fixed" (newest window only) or "growing" (all data so far).
+        iters: L-BFGS iterations per window update (paper: k).
+        batch_fraction: share of the window's observation times per gradient, in (0, 1].
+        iters_per_batch: iterations on one mini-batch before drawing the next (ignored when
+            ``batch_fraction`` is 1: then one step of ``iters`` iterations).
+        history_size: L-BFGS curvature pairs kept.
+        weight_bound: every MLP weight is boxed in [-bound, bound]; wide enough not to bind for
+            the scaled features, narrow enough to keep tanh units out of saturation-driven blow-ups.
+        seed: seed of the weight initialisation and the batch draws.
+        gradient: ``Adjoint()`` (default; memory independent of the step count) or ``Backprop()``.
+        rtol, atol: solver tolerances inside training (looser than for reference simulations:
+            the noise, not the solver, limits the fit).
+    """
+
+    window_s: float = 600.0
+    mode: str = "fixed"
+    iters: int = 20
+    batch_fraction: float = 1.0
+    iters_per_batch: int = 5
+    history_size: int = 10
+    weight_bound: float = 10.0
+    seed: int = 0
+    gradient: Adjoint | Backprop = Adjoint()
+    rtol: float = 1e-6
+    atol: float = 1e-8
+
+    def __post_init__(self):
+        if not (self.window_s > 0 and math.isfinite(self.window_s)):
+            raise ValueError(f"window_s must be a positive number of seconds, got {self.window_s}")
+        if self.mode not in ("fixed", "growing"):
+            raise ValueError(f"mode must be 'fixed' or 'growing', got {self.mode!r}")
+        if self.iters < 1 or self.iters_per_batch < 1 or self.history_size < 1:
+            raise ValueError("iters, iters_per_batch and history_size must be >= 1")
+        if not (0 < self.batch_fraction <= 1):
+            raise ValueError(f"batch_fraction must be in (0, 1], got {self.batch_fraction}")
+        if not (self.weight_bound > 0):
+            raise ValueError(f"weight_bound must be > 0, got {self.weight_bound}")
+        if not isinstance(self.gradient, (Adjoint, Backprop)):
+            raise ValueError(f"gradient must be Adjoint() or Backprop(), got {self.gradient!r}")
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["gradient"] = type(self.gradient).__name__
+        return json.dumps(d, sort_keys=True)
+
+    @staticmethod
+    def from_json(text: str) -> "AssimilationConfig":
+        d = json.loads(text)
+        d["gradient"] = _GRADIENTS[d["gradient"]]()
+        return AssimilationConfig(**d)
+
+
+@dataclass(frozen=True)
+class WindowReport:
+    """What one window update did (the numbers TensorBoard shows)."""
+
+    index: int
+    t0_s: float
+    t1_s: float
+    cost_before: float
+    cost_after: float
+    cost_terms: list  # (env, 5) after the update, per channel
+    theta_mean: list  # (env, 4) mean h over the window after the update, W/(m^2 K)
+    grad_norm: float
+    n_evals: int
+    n_iters: int
+    wall_s: float
+
+
+@dataclass
+class AssimilationResult:
+    """The trained closure and the per-window reports."""
+
+    closure: MLPClosure
+    config: AssimilationConfig
+    reports: list[WindowReport] = field(default_factory=list)
+
+
+def window_edges(t0: float, t_end: float, window_s: float) -> list[tuple[float, float]]:
+    """Consecutive windows of ``window_s`` covering [t0, t_end]; a last partial window is kept."""
+    n = max(1, int(math.ceil((t_end - t0) / window_s - 1e-9)))
+    return [(t0 + k * window_s, min(t0 + (k + 1) * window_s, t_end)) for k in range(n)]
+
+
+class Assimilator:
+    """Train an MLP closure on a fleet's stream of observations, window by window.
+
+    Args:
+        runs: one or several measured runs (one closure for all: multi-environment).
+        config: an ``AssimilationConfig``.
+        closure: the agent to train; a fresh ``MLPClosure`` (seeded) if None (e.g. pass the
+            agent trained on other environments to continue from it).
+        surrogate: property surrogate (cached default for the runs' fluid if None).
+    """
+
+    def __init__(self, runs, config: AssimilationConfig = AssimilationConfig(), closure=None, surrogate=None):
+        self.fleet = Fleet.from_runs(runs, surrogate)
+        self.config = config
+        self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed))
+        self.model = TankModel(self.fleet.fluid, self.fleet.geometry, self.closure,
+                               self.fleet.wall_heat_capacity_J_per_K)
+        self.s0 = self.fleet.initial_state()
+        self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3)
+        self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol)
+        self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
+
+    # -- forward pieces ------------------------------------------------------------------------
+
+    def _forcing(self, t: float, s: Tensor):
+        p = self.fleet.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p
+        return self.fleet.forcing(t, p)
+
+    def predict(self, s_start: Tensor, t_start: float, t_eval: Tensor, gradient) -> Tensor:
+        """States ``(env, T, 7)`` at ``t_eval`` integrating from ``s_start`` at ``t_start``."""
+        t_end = float(t_eval[-1])
+        cuts = [t_start, *self.fleet.breakpoints(t_start, t_end), t_end]
+        states, _ = integrate(self.model, s_start, list(zip(cuts[:-1], cuts[1:])), self._forcing, t_eval,
+                              self.scale, self.solver, gradient)
+        return states
+
+    def _span(self, k: int, s_next: Tensor) -> tuple[float, Tensor]:
+        """(t_start, s_start) of window k's integration for the configured mode."""
+        if self.config.mode == "growing" or k == 0:
+            return self.fleet.t0_s, self.s0
+        return self.windows[k][0], s_next
+
+    # -- one window ----------------------------------------------------------------------------
+
+    def update(self, k: int, s_next: Tensor) -> tuple[WindowReport, Tensor, dict]:
+        """Train on window k; return its report, the next fixed window's initial state and the optimiser state."""
+        cfg = self.config
+        t_data0 = self.windows[k][0] if cfg.mode == "fixed" else self.fleet.t0_s
+        t1 = self.windows[k][1]
+        t_start, s_start = self._span(k, s_next)
+        window = Window.from_runs(self.fleet.runs, t_data0, t1)
+        t_eval = torch.cat([window.t_s, torch.tensor([t1], dtype=torch.float64)]).unique()
+        obs_index = torch.searchsorted(t_eval, window.t_s)
+        start = time.perf_counter()
+
+        def loss(mask=None):
+            states = self.predict(s_start, t_start, t_eval, cfg.gradient)
+            pred = self.model.observe(states[:, obs_index])
+            return cost(pred, window, mask)
+
+        batch = None
+        n_outer, per_step = 1, cfg.iters
+        if cfg.batch_fraction < 1.0:
+            batch = MiniBatch(fraction=cfg.batch_fraction, n_samples=len(window), seed=cfg.seed * 100_003 + k,
+                              history=ResetHistory())
+            n_outer, per_step = max(1, cfg.iters // cfg.iters_per_batch), cfg.iters_per_batch
+        opt = BoundedLBFGS(self.closure, uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound),
+                           max_iter=per_step, history_size=cfg.history_size, batch=batch)
+        with torch.no_grad():
+            before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, Backprop())[:, obs_index]),
+                                window))
+        n_evals = n_iters = 0
+        grad_norm = float("nan")
+        if len(window) > 0:
+            for _ in range(n_outer):
+                res = opt.step(loss)
+                n_evals += res.n_evals
+                n_iters += res.n_iters
+                grad_norm = res.proj_grad_norm
+        with torch.no_grad():
+            states = self.predict(s_start, t_start, t_eval, Backprop())
+            pred = self.model.observe(states[:, obs_index])
+            terms = cost_terms(pred, window)
+            after = float(terms.sum() / window.n_env)
+            theta = self._theta(states, t_eval)
+        report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
+                              n_evals, n_iters, time.perf_counter() - start)
+        return report, states[:, -1].detach().clone(), opt.state_dict()
+
+    def _theta(self, states: Tensor, t: Tensor) -> Tensor:
+        """Closure output along a trajectory, ``(env, T, 4)``."""
+        out = []
+        for j in range(states.shape[1]):
+            f, _, _ = self.model.fluxes(states[:, j], self._forcing(float(t[j]), states[:, j]))
+            out.append(f.theta_W_m2K)
+        return torch.stack(out, dim=1)
+
+    # -- the loop ------------------------------------------------------------------------------
+
+    def run(self, checkpoint: str | Path | None = None, resume: bool = False, logdir: str | Path | None = None,
+            progress: bool = False, on_window=None) -> AssimilationResult:
+        """Update the agent on every window in turn; checkpoint after each.
+
+        Args:
+            checkpoint: file to write after every window (and to resume from).
+            resume: continue from ``checkpoint`` if it exists (same runs and configuration).
+            logdir: TensorBoard log directory (None: no logging).
+            progress: show a progress bar.
+            on_window: optional callback ``on_window(report)`` after each window.
+        """
+        result = AssimilationResult(self.closure, self.config)
+        k0, s_next = 0, self.s0
+        if resume and checkpoint is not None and Path(checkpoint).exists():
+            k0, s_next = self._restore(load_checkpoint(checkpoint), result)
+        writer = None
+        if logdir is not None:
+            from .logger import TrainingLogger
+
+            writer = TrainingLogger(logdir, [r.name for r in self.fleet.runs])
+        iterator = range(k0, len(self.windows))
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(iterator, total=len(self.windows), initial=k0, desc="windows", unit="window")
+        for k in iterator:
+            report, s_end, opt_state = self.update(k, s_next)
+            s_next = s_end
+            result.reports.append(report)
+            if writer is not None:
+                writer.log_window(report, self, s_next)
+            if checkpoint is not None:
+                save_checkpoint(checkpoint, self._payload(k, s_next, opt_state, result))
+            if on_window is not None:
+                on_window(report)
+        if writer is not None:
+            writer.close()
+        return result
+
+    def _payload(self, k: int, s_next: Tensor, opt_state: dict, result: AssimilationResult) -> dict:
+        return {
+            "format": "tankode-assimilation-checkpoint-1",
+            "next_window": k + 1,
+            "config": self.config.to_json(),
+            "mlp_config": json.dumps(asdict(self.closure.config)),
+            "runs": [r.name for r in self.fleet.runs],
+            "weights": {n: p.detach().clone() for n, p in self.closure.state_dict().items()},
+            "optimizer": opt_state,
+            "s_next": s_next,
+            "reports": [json.dumps(asdict(r)) for r in result.reports],
+        }
+
+    def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
+        if ck.get("format") != "tankode-assimilation-checkpoint-1":
+            raise ValueError(f"not a tankode assimilation checkpoint (format {ck.get('format')!r})")
+        if ck["config"] != self.config.to_json():
+            raise ValueError("checkpoint was written with another configuration:\n"
+                             f"  checkpoint: {ck['config']}\n  now:        {self.config.to_json()}")
+        names = [r.name for r in self.fleet.runs]
+        if list(ck["runs"]) != names:
+            raise ValueError(f"checkpoint is for runs {list(ck['runs'])}, not {names}")
+        self.closure.load_state_dict(ck["weights"])
+        result.reports.extend(WindowReport(**json.loads(r)) for r in ck["reports"])
+        return int(ck["next_window"]), ck["s_next"]
+
+
+__all__ = ["Assimilator", "AssimilationConfig", "AssimilationResult", "WindowReport", "window_edges"]

@@ -1,0 +1,80 @@
+"""TensorBoard logging of the assimilation: costs, coefficients, gradients, prediction figures."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+from torch.utils.tensorboard import SummaryWriter  # noqa: E402
+
+from tankode.closures import THETA_NAMES  # noqa: E402
+
+from .cost import CHANNELS  # noqa: E402
+
+
+class TrainingLogger:
+    """Per-window scalars and a prediction-vs-data figure, in TensorBoard's format.
+
+    Scalars (step = window index): ``J/total``, ``J/<env>/<channel>``, ``h/<env>/<coefficient>``
+    (window means, W/(m^2 K)), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
+    ``time/update_s``. Figure ``prediction/<env>``: pressure and temperatures over the window.
+    """
+
+    def __init__(self, logdir, env_names):
+        self.writer = SummaryWriter(str(logdir))
+        self.env_names = list(env_names)
+
+    def log_window(self, report, assimilator, s_next) -> None:
+        k = report.index
+        w = self.writer
+        w.add_scalar("J/total", report.cost_after, k)
+        w.add_scalar("J/before_update", report.cost_before, k)
+        for e, name in enumerate(self.env_names):
+            for c, ch in enumerate(CHANNELS):
+                if report.cost_terms[e][c] > 0:
+                    w.add_scalar(f"J/{name}/{ch}", report.cost_terms[e][c], k)
+            for j, th in enumerate(THETA_NAMES):
+                w.add_scalar(f"h/{name}/{th}", report.theta_mean[e][j], k)
+        w.add_scalar("optim/grad_norm", report.grad_norm, k)
+        w.add_scalar("optim/function_evals", report.n_evals, k)
+        w.add_scalar("optim/iterations", report.n_iters, k)
+        w.add_scalar("time/update_s", report.wall_s, k)
+        for e, name in enumerate(self.env_names):
+            w.add_figure(f"prediction/{name}", self._figure(assimilator, report, e), k)
+        w.flush()
+
+    def _figure(self, assimilator, report, e: int):
+        run = assimilator.fleet.runs[e]
+        t0, t1 = assimilator.fleet.t0_s, report.t1_s
+        t = torch.linspace(t0, t1, 121, dtype=torch.float64)
+        with torch.no_grad():
+            from tankode.solver import NoGradient
+
+            obs = assimilator.model.observe(assimilator.predict(assimilator.s0, t0, t, NoGradient()))[e]
+        fig, (ax_p, ax_t) = plt.subplots(1, 2, figsize=(9, 3.2))
+        tm = t.numpy() / 60
+        ax_p.plot(tm, obs[:, 0].numpy() / 1e5, "k-", label="agent (from t0)")
+        tp, vp = run.observations.channel("p_v_Pa")
+        keep = tp <= t1
+        ax_p.plot(tp[keep] / 60, vp[keep] / 1e5, "k.", ms=2, alpha=0.4, label="data")
+        ax_p.set_xlabel("time [min]")
+        ax_p.set_ylabel("p_v [bar]")
+        for c, color in ((1, "tab:red"), (2, "tab:blue"), (3, "tab:gray")):
+            ax_t.plot(tm, obs[:, c].numpy(), "-", color=color, label=CHANNELS[c])
+            tc, vc = run.observations.channel(CHANNELS[c])
+            keep = tc <= t1
+            ax_t.plot(tc[keep] / 60, vc[keep], ".", color=color, ms=2, alpha=0.4)
+        ax_t.set_xlabel("time [min]")
+        ax_t.set_ylabel("temperature [K]")
+        ax_p.legend(fontsize=7)
+        ax_t.legend(fontsize=7)
+        fig.tight_layout()
+        return fig
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+__all__ = ["TrainingLogger"]
