@@ -45,8 +45,8 @@ _STILL = {"slosh_amplitude_m": 0.0, "slosh_frequency_Hz": 0.0}
 
 
 def _inject(mdot_kg_s: float) -> dict[str, float]:
-    # Injected warm gas from a 6 bar supply at 40 K (above the tank pressure, as a pressurant line is).
-    return {"mdot_v_in_kg_s": mdot_kg_s, "T_v_in_K": 40.0, "p_v_in_Pa": 6.0e5}
+    # Injected gas from a 6 bar supply (above the tank pressure, as a pressurant line is) at 32 K.
+    return {"mdot_v_in_kg_s": mdot_kg_s, "T_v_in_K": 32.0, "p_v_in_Pa": 6.0e5}
 
 
 def _case(name: str, fill: float, p: float, T_v: float, T_l: float, T_w: float, steps, note: str) -> Run:

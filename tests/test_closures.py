@@ -44,7 +44,7 @@ def test_reference_natural_convection_only_when_unstable():
     nu = x.liquid.mu / x.rho_l_kg_m3
     alpha = x.liquid.k / (x.rho_l_kg_m3 * x.liquid.cp)
     ra = 9.80665 * x.liquid.beta * (x.T_l_K - x.T_sat_K) * R**3 / (nu * alpha)
-    expected = (c.nu_0 + c.c_nat * ra ** (1 / 3)) * x.liquid.k / R
+    expected = (c.nu_0 + c.c_nat_liquid * ra ** (1 / 3)) * x.liquid.k / R
     # 1e-3: the switch and |dT| are smoothed over 0.05 K, which shifts Ra^(1/3) by ~2e-4 at dT = 1.4 K.
     assert unstable.item() == pytest.approx(expected.item(), rel=1e-3)
     assert unstable > 10 * stable

@@ -1,0 +1,16 @@
+"""Fluid properties for the 0D tank model: CoolProp reference and a fast differentiable surrogate.
+
+``CoolPropFluid`` is the (slow, numpy) ground truth. ``Surrogate`` gives each phase's pressure,
+temperature, pressure derivatives, saturation state and transport/caloric properties as torch
+functions of (u, rho), fitted to CoolProp (``fit_surrogate``) and cached on disk
+(``load_surrogate``); ``benchmark_surrogate`` measures its error and speed on held-out points.
+"""
+
+from .benchmark import benchmark_surrogate
+from .coolprop import CoolPropFluid
+from .surrogate import Domain, PhaseProps, Surrogate, SurrogateConfig, fit_surrogate, load_surrogate
+
+__all__ = [
+    "CoolPropFluid", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate",
+    "benchmark_surrogate",
+]

@@ -1,0 +1,109 @@
+"""Disk cache and in-process memo of fitted surrogates, so that import and simulation never refit.
+
+File: ``$TANKODE_CACHE_DIR`` (else ``~/.cache/tankode``) / ``surrogate-<fluid>-<hash>.pt``, the
+hash covering the fluid, ``Domain``, ``SurrogateConfig``, the CoolProp version and the file
+format version: any change to those refits. Files hold only tensors and plain python values
+(``torch.save`` of ``Surrogate.state()``) and are read with ``torch.load(weights_only=True)``,
+which refuses to unpickle arbitrary objects. Writes go to a temporary file then ``os.replace``,
+so a crashed or concurrent fit never leaves a truncated cache file behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import CoolProp
+import torch
+
+from .config import SurrogateConfig
+from .domain import Domain
+from .fit import FORMAT_VERSION, fit_surrogate
+from .model import Surrogate
+
+_MEMO: dict[tuple, Surrogate] = {}
+
+
+def cache_dir() -> Path:
+    """Directory of cached surrogates: ``$TANKODE_CACHE_DIR`` or ``~/.cache/tankode``."""
+    env = os.environ.get("TANKODE_CACHE_DIR")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "tankode"
+
+
+def cache_key(fluid_name: str, domain: Domain, config: SurrogateConfig) -> str:
+    """Hex digest identifying a fit: fluid, domain, config, CoolProp version, format version."""
+    payload = {
+        "fluid": fluid_name, "domain": domain.as_dict(), "config": config.as_dict(),
+        "coolprop": CoolProp.__version__, "format": FORMAT_VERSION,
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def cache_path(fluid_name: str, domain: Domain, config: SurrogateConfig) -> Path:
+    """Where ``load_surrogate`` reads/writes this fit."""
+    return cache_dir() / f"surrogate-{fluid_name}-{cache_key(fluid_name, domain, config)}.pt"
+
+
+def save_surrogate(surrogate: Surrogate, path: Path | str) -> None:
+    """Atomically write ``surrogate.state()`` with ``torch.save``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            torch.save(surrogate.state(), fh)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_surrogate(path: Path | str) -> Surrogate:
+    """Load a surrogate file written by ``save_surrogate`` (``weights_only=True``: no arbitrary code)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        return Surrogate.from_state(state)
+    except Exception as err:
+        raise RuntimeError(
+            f"cannot read cached surrogate {path}: {err}. Delete the file to refit."
+        ) from err
+
+
+def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
+                   config: SurrogateConfig = SurrogateConfig()) -> Surrogate:
+    """The surrogate for (fluid, domain, config): memoised in-process, cached on disk, else fitted.
+
+    Same arguments (and cache directory) return the same object within a process. A missing
+    cache file triggers ``fit_surrogate`` (a few seconds) and writes the file; an unreadable one
+    raises ``RuntimeError`` naming it (no silent refit over a file someone may be inspecting).
+    """
+    from dataclasses import replace
+
+    if domain.fluid_name != fluid_name:
+        domain = replace(domain, fluid_name=fluid_name)
+    path = cache_path(fluid_name, domain, config)
+    key = (fluid_name, domain, config, str(path))
+    hit = _MEMO.get(key)
+    if hit is not None:
+        return hit
+    if path.exists():
+        surrogate = read_surrogate(path)
+        if surrogate.fluid_name != fluid_name or surrogate.domain != domain:
+            raise RuntimeError(f"cached surrogate {path} is for {surrogate.fluid_name} on {surrogate.domain}, "
+                               f"expected {fluid_name} on {domain}; delete the file to refit")
+    else:
+        surrogate = fit_surrogate(fluid_name, domain, config)
+        save_surrogate(surrogate, path)
+    _MEMO[key] = surrogate
+    return surrogate
+
+
+def clear_memo() -> None:
+    """Forget the in-process memo (tests; the disk cache is untouched)."""
+    _MEMO.clear()
+
+
+__all__ = ["load_surrogate", "save_surrogate", "read_surrogate", "cache_dir", "cache_path", "cache_key", "clear_memo"]

@@ -1,0 +1,15 @@
+"""Public face of the property surrogate: configuration, model, fitting and cached loading.
+
+The pieces live in one-concept modules (``domain``, ``config``, ``model``, ``fit``, ``cache``);
+this module gathers them under the names of the design (Marques, Ahizi & Mendez, section 3:
+Peng-Robinson pressure and first-order Taylor temperature corrected by RBF interpolants in
+min-max scaled (u, rho), one per phase).
+"""
+
+from .cache import load_surrogate
+from .config import SurrogateConfig
+from .domain import Domain
+from .fit import fit_surrogate
+from .model import PhaseProps, Surrogate
+
+__all__ = ["Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate"]
