@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from torchdiffeq import odeint, odeint_adjoint
 
 from .forcing import Forcing
-from .solver import AdaptiveRK, Adjoint, Backprop, NoGradient
+from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, NoGradient
 from .state import STATE_NAMES
 
 
@@ -29,6 +29,37 @@ class SimulationError(RuntimeError):
         super().__init__(message + where)
         self.t_s = t_s
         self.state = state
+
+
+def _solve_segment(func: nn.Module, z0: Tensor, ts: Tensor, solver, gradient, model: nn.Module) -> Tensor:
+    """Scaled states ``(len(ts), env, 7)`` of one segment with the chosen solver and gradient."""
+    if isinstance(solver, LSODA):
+        return _lsoda(func, z0, ts, solver)
+    kwargs = dict(rtol=solver.rtol, atol=solver.atol, method=solver.method)
+    if isinstance(gradient, Adjoint):
+        return odeint_adjoint(
+            func, z0, ts, **kwargs,
+            adjoint_rtol=gradient.rtol or solver.rtol, adjoint_atol=gradient.atol or solver.atol,
+            adjoint_params=tuple(p for p in model.parameters() if p.requires_grad),
+        )
+    return odeint(func, z0, ts, **kwargs)
+
+
+def _lsoda(func: nn.Module, z0: Tensor, ts: Tensor, solver: LSODA) -> Tensor:
+    """SciPy LSODA on the flattened batch; returns ``(len(ts), env, 7)`` like torchdiffeq."""
+    from scipy.integrate import solve_ivp
+
+    shape = z0.shape
+
+    def rhs(t, z):
+        return func(torch.tensor(t, dtype=torch.float64), torch.from_numpy(z).reshape(shape)).reshape(-1).numpy()
+
+    t_np = ts.numpy()
+    sol = solve_ivp(rhs, (float(t_np[0]), float(t_np[-1])), z0.reshape(-1).numpy(), method="LSODA",
+                    t_eval=t_np, rtol=solver.rtol, atol=solver.atol)
+    if sol.status != 0:
+        raise RuntimeError(f"LSODA: {sol.message}")
+    return torch.from_numpy(sol.y.T.copy()).reshape(len(t_np), *shape)
 
 
 @dataclass
@@ -86,7 +117,7 @@ def integrate(
     forcing: Callable[[float, Tensor], Forcing],
     t_eval: Tensor,
     scale: Tensor,
-    solver: AdaptiveRK = AdaptiveRK(),
+    solver: AdaptiveRK | LSODA = AdaptiveRK(),
     gradient=NoGradient(),
 ) -> tuple[Tensor, IntegrationStats]:
     """Integrate ``model`` from ``s0`` across ``segments`` and return states at ``t_eval``.
@@ -103,7 +134,7 @@ def integrate(
             ``s_start`` ``(env, 7)`` (inflow enthalpies may depend on the tank pressure).
         t_eval: output times (s), sorted, inside ``[t_start, t_end]``, shape ``(T,)``.
         scale: ``(env, 7)`` state scales (``state_scale``).
-        solver: an ``AdaptiveRK``.
+        solver: ``AdaptiveRK`` (any gradient) or ``LSODA`` (stiff-capable, ``NoGradient`` only).
         gradient: ``NoGradient()``, ``Backprop()`` or ``Adjoint()``.
 
     Returns:
@@ -127,6 +158,10 @@ def integrate(
         if a1 != b0:
             raise ValueError(f"segments must be contiguous: one ends at {a1} s, the next starts at {b0} s")
 
+    if not isinstance(gradient, (NoGradient, Backprop, Adjoint)):
+        raise TypeError(f"gradient must be NoGradient(), Backprop() or Adjoint(), got {gradient!r}")
+    if isinstance(solver, LSODA) and not isinstance(gradient, NoGradient):
+        raise ValueError("the LSODA solver is forward only; use AdaptiveRK() with Backprop() or Adjoint()")
     counter = _Counter()
     outputs: list[Tensor] = []
     if float(t_eval[0]) <= t_start + 1e-9:
@@ -139,18 +174,8 @@ def integrate(
             ts = torch.cat([torch.tensor([t0], dtype=torch.float64), inner, torch.tensor([t1], dtype=torch.float64)])
             func = _ScaledRHS(model, forcing(t0, s.detach()), scale, counter, solver.max_rhs_evals)
             z0 = s / scale
-            kwargs = dict(rtol=solver.rtol, atol=solver.atol, method=solver.method)
             try:
-                if isinstance(gradient, Adjoint):
-                    z = odeint_adjoint(
-                        func, z0, ts, **kwargs,
-                        adjoint_rtol=gradient.rtol or solver.rtol, adjoint_atol=gradient.atol or solver.atol,
-                        adjoint_params=tuple(p for p in model.parameters() if p.requires_grad),
-                    )
-                elif isinstance(gradient, (Backprop, NoGradient)):
-                    z = odeint(func, z0, ts, **kwargs)
-                else:
-                    raise TypeError(f"gradient must be NoGradient(), Backprop() or Adjoint(), got {gradient!r}")
+                z = _solve_segment(func, z0, ts, solver, gradient, model)
             except SimulationError:
                 raise
             except (AssertionError, RuntimeError, ValueError) as err:

@@ -14,7 +14,7 @@ from .fleet import Fleet
 from .integrate import IntegrationStats, SimulationError, integrate, state_scale
 from .model import TankModel
 from .run import Run
-from .solver import AdaptiveRK, NoGradient
+from .solver import LSODA, AdaptiveRK, NoGradient
 
 OBS_NAMES = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
 
@@ -67,7 +67,7 @@ def simulate(
     surrogate=None,
     output_dt_s: float | None = 10.0,
     t_eval=None,
-    solver: AdaptiveRK = AdaptiveRK(),
+    solver: AdaptiveRK | LSODA = LSODA(),
     check_domain: bool = True,
 ) -> Solution:
     """Simulate runs (their initial state and inputs) with a closure; the forward model.
@@ -79,7 +79,7 @@ def simulate(
         surrogate: property surrogate; the cached default for the runs' fluid if None.
         output_dt_s: spacing (s) of the output grid, which also includes every observation time.
         t_eval: explicit output times (s), overriding ``output_dt_s``.
-        solver: the ODE solver strategy.
+        solver: the ODE solver strategy; LSODA (stiff-capable) by default.
         check_domain: raise if the trajectory leaves the surrogate's fitted domain
             (results there would be extrapolation).
 

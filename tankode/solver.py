@@ -43,6 +43,34 @@ class AdaptiveRK:
 
 
 @dataclass(frozen=True)
+class LSODA:
+    """SciPy's LSODA (Adams/BDF with automatic stiffness switching), forward only.
+
+    Tanks with a light wall (e.g. aluminium at 20 K: m_w c_w ~ 1e4 J/K against wall
+    conductances of 1e3-1e4 W/K) have sub-second wall time constants in runs of many hours:
+    the ODE is stiff and an explicit solver is stability-limited (MHTB P263981D: dopri5 needs
+    57,000 right-hand-side evaluations, LSODA 250). ``simulate`` uses LSODA by default;
+    training needs gradients and uses ``AdaptiveRK``.
+
+    Attributes:
+        rtol, atol: tolerances on the scaled state (as ``AdaptiveRK``).
+        max_rhs_evals: hard bound on right-hand-side evaluations per segment.
+    """
+
+    rtol: float = 1e-7
+    atol: float = 1e-9
+    max_rhs_evals: int = 200_000
+
+    def __post_init__(self):
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 < v < 1):
+                raise ValueError(f"LSODA.{name} must be in (0, 1), got {v}")
+        if self.max_rhs_evals < 10:
+            raise ValueError(f"LSODA.max_rhs_evals must be >= 10, got {self.max_rhs_evals}")
+
+
+@dataclass(frozen=True)
 class NoGradient:
     """Forward only (no autograd graph): simulation, prediction, benchmarks."""
 
@@ -67,4 +95,4 @@ class Adjoint:
     atol: float | None = None
 
 
-__all__ = ["AdaptiveRK", "NoGradient", "Backprop", "Adjoint"]
+__all__ = ["AdaptiveRK", "LSODA", "NoGradient", "Backprop", "Adjoint"]

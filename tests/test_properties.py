@@ -10,7 +10,6 @@ import dataclasses
 import json
 import math
 
-import CoolProp
 import CoolProp.CoolProp as CP
 import numpy as np
 import pytest
@@ -40,6 +39,15 @@ def cache_dir(tmp_path_factory):
 @pytest.fixture(scope="session")
 def surrogate(cache_dir) -> Surrogate:
     return load_surrogate(FLUID)
+
+
+@pytest.fixture
+def one_thread():
+    # Tiny tensors: extra BLAS/OpenMP threads only add latency, badly so on a busy machine.
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
 
 
 @pytest.fixture(scope="session")
@@ -139,7 +147,7 @@ def test_rbf_reproduces_function_and_gradient(kernel, eps, method):
     torch.testing.assert_close(rbf(xt), val, rtol=1e-9, atol=1e-9)
 
 
-def test_rbf_second_order_differentiable():
+def test_rbf_second_order_differentiable(one_thread):
     X = torch.rand(300, 2, generator=torch.Generator().manual_seed(1), dtype=F64)
     Y = torch.stack([torch.sin(3 * X[:, 0]) * torch.exp(X[:, 1]), X[:, 0] ** 2], 1)
     rbf, _ = fit_rbf(X, Y, X[:40], kernel="multiquadric", eps=2.0, degree=2, grad_outputs=(0, 1))
@@ -172,7 +180,8 @@ def test_pr_derivatives_match_autograd(fluid):
     torch.testing.assert_close(drho, grho, rtol=1e-11, atol=0)
     # Dilute limit: ideal gas with the fluid's specific gas constant.
     small = torch.tensor([1e-4], dtype=F64)
-    assert float(pr.pressure(torch.tensor([40.0], dtype=F64), small) / (small * pr.R_s * 40.0)) == pytest.approx(1, abs=1e-5)
+    ratio = pr.pressure(torch.tensor([40.0], dtype=F64), small) / (small * pr.R_s * 40.0)
+    assert float(ratio) == pytest.approx(1, abs=1e-5)
 
 
 def test_pr_taylor_baseline_equals_reference(fluid):
@@ -194,7 +203,7 @@ def test_pr_taylor_baseline_equals_reference(fluid):
 
 
 def test_surrogate_held_out_accuracy(surrogate):
-    res = benchmark_surrogate(surrogate, n_points=2000, seed=123, repeats=1)
+    res = benchmark_surrogate(surrogate, n_points=2000, seed=123, timing=False)
     json.dumps(res)  # JSON-serialisable
     for phase in ("vapor", "liquid"):
         err = res["phases"][phase]["max_rel_err"]
@@ -231,7 +240,7 @@ def _scaled(surrogate, phase, u0, rho0):
 
 
 @pytest.mark.parametrize("phase", ["vapor", "liquid"])
-def test_surrogate_gradcheck(surrogate, held_out, phase):
+def test_surrogate_gradcheck(surrogate, held_out, phase, one_thread):
     u0, rho0 = held_out[phase]
     u0, rho0 = u0[[0, 1, -1]], rho0[[0, 1, -1]]
     fn = _scaled(surrogate, phase, u0, rho0)
@@ -256,7 +265,9 @@ def test_batching_over_leading_dims(surrogate, held_out):
         torch.testing.assert_close(b.reshape(-1), f, rtol=1e-12, atol=0)
     one = surrogate.vapor(u[5], rho[5])  # 0-d in, 0-d out, same values
     assert one.p.shape == ()
-    torch.testing.assert_close(one.p, flat.p[5], rtol=1e-12, atol=0)
+    # A 0-d input takes a matrix-vector path whose summation order differs; the fit's large,
+    # cancelling weights turn that into ~1e-11 relative differences (rounding, not batching).
+    torch.testing.assert_close(one.p, flat.p[5], rtol=1e-9, atol=0)
     bc = surrogate.vapor(u[:3, None], rho[None, :4])  # broadcasting
     assert bc.T.shape == (3, 4)
     with pytest.raises(TypeError, match="float64"):
@@ -308,6 +319,10 @@ def test_domain_validation():
         Domain(T_v_max_K=25.0)
     with pytest.raises(ValueError, match=r"metastable_K"):
         Domain(metastable_K=-0.5)
+    with pytest.raises(ValueError, match=r"metastable_K.*1\.4\d.*spinodal"):
+        Domain(p_max_Pa=7e5, metastable_K=1.6)  # the vapour branch ends ~1.44 K below T_sat(7 bar)
+    with pytest.raises(ValueError, match=r"metastable_K.*1\.8\d.*spinodal"):
+        Domain(metastable_K=2.0)  # ~1.88 K below T_sat(6 bar), the default p_max
     with pytest.raises(ValueError, match=r"p_min_Pa.*finite"):
         Domain(p_min_Pa=float("nan"))
     with pytest.raises(ValueError, match=r"Foo"):

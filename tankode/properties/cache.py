@@ -14,6 +14,8 @@ import hashlib
 import json
 import os
 import tempfile
+import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import CoolProp
@@ -77,11 +79,10 @@ def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
     """The surrogate for (fluid, domain, config): memoised in-process, cached on disk, else fitted.
 
     Same arguments (and cache directory) return the same object within a process. A missing
-    cache file triggers ``fit_surrogate`` (a few seconds) and writes the file; an unreadable one
-    raises ``RuntimeError`` naming it (no silent refit over a file someone may be inspecting).
+    cache file triggers ``fit_surrogate`` (~1-2 s) and writes the file (a warning if the directory
+    is not writable); an unreadable one raises ``RuntimeError`` naming it (no silent refit over a
+    file someone may be inspecting).
     """
-    from dataclasses import replace
-
     if domain.fluid_name != fluid_name:
         domain = replace(domain, fluid_name=fluid_name)
     path = cache_path(fluid_name, domain, config)
@@ -96,7 +97,12 @@ def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
                                f"expected {fluid_name} on {domain}; delete the file to refit")
     else:
         surrogate = fit_surrogate(fluid_name, domain, config)
-        save_surrogate(surrogate, path)
+        try:
+            save_surrogate(surrogate, path)
+        except OSError as err:
+            # The fit itself is valid; only the cache is lost (every process will refit).
+            warnings.warn(f"could not write the surrogate cache {path}: {err}; set TANKODE_CACHE_DIR to a "
+                          f"writable directory to avoid refitting", UserWarning, stacklevel=2)
     _MEMO[key] = surrogate
     return surrogate
 

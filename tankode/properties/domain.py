@@ -37,6 +37,31 @@ def _T_sat(fluid_name: str, p_Pa: float) -> float:
     return float(CoolPropFluid(fluid_name).saturation(p_Pa)["T_sat"])
 
 
+def _branch_exists(fluid, phase: str, p_Pa: float, T_K: float) -> bool:
+    try:
+        fluid.props_pT(p_Pa, T_K, phase)
+        return True
+    except ValueError:
+        return False
+
+
+@lru_cache(maxsize=64)
+def _max_metastable_K(fluid_name: str, p_Pa: float) -> float:
+    """Largest margin (K) for which both single-phase branches still exist at ``p_Pa`` (bisection, 0.01 K)."""
+    from .coolprop import CoolPropFluid
+
+    f = CoolPropFluid(fluid_name)
+    T_sat = _T_sat(fluid_name, p_Pa)
+    out = []
+    for phase, sign in (("vapor", -1.0), ("liquid", 1.0)):
+        lo, hi = 0.0, 5.0
+        while hi - lo > 0.01:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if _branch_exists(f, phase, p_Pa, T_sat + sign * mid) else (lo, mid)
+        out.append(lo)
+    return min(out)
+
+
 @dataclass(frozen=True)
 class Domain:
     """Fitted region of a property surrogate, in pressure and temperature (SI).
@@ -47,15 +72,17 @@ class Domain:
 
     # Pa; below the ~1 bar venting pressure of LH2 tanks with room for depressurisation dips.
     p_min_Pa: float = 0.7e5
-    # Pa; above typical relief settings (5-6 bar) of small LH2 tanks, well below p_crit (12.9 bar).
-    p_max_Pa: float = 7.0e5
+    # Pa; the paper's environments peak at 5.3 bar; 6 bar (a typical relief setting of small LH2
+    # tanks) keeps the vapour spinodal 1.88 K below T_sat, room for the metastable margin below.
+    p_max_Pa: float = 6.0e5
     # K; covers warm, stratified ullage and warm-gas pressurisation near the saturated liquid.
     T_v_max_K: float = 50.0
     # K; allows subcooled (densified) liquid, kept 3 K above the 13.8 K triple point.
     T_l_min_K: float = 17.0
     # K; vapour down to T_sat(p) - margin, liquid up to T_sat(p) + margin (metastable states of
-    # a non-equilibrium tank); 1 K stays clear of the spinodals at 7 bar (vapour fails ~1.5 K).
-    metastable_K: float = 1.0
+    # a non-equilibrium tank: case 1's ullage, cooled by a wall below T_sat, subcools by 1.3 K);
+    # CoolProp's vapour branch ends 1.88 K below T_sat at 6 bar (the spinodal), validated below.
+    metastable_K: float = 1.8
     # Fluid whose triple/critical points bound the fields (validation only).
     fluid_name: str = "ParaHydrogen"
 
@@ -70,8 +97,8 @@ class Domain:
                 raise ValueError(f"Domain.{f.name} must be a finite number, got {v!r}")
         lim = _fluid_limits(self.fluid_name)
         name = self.fluid_name
-        if not 0.0 <= self.metastable_K <= 2.0:
-            raise ValueError(f"Domain.metastable_K must be in [0, 2] K (spinodal proximity), got {self.metastable_K}")
+        if not 0.0 <= self.metastable_K <= 5.0:
+            raise ValueError(f"Domain.metastable_K must be in [0, 5] K, got {self.metastable_K}")
         if not lim["p_triple"] < self.p_min_Pa < self.p_max_Pa:
             raise ValueError(
                 f"Domain.p_min_Pa must be in ({lim['p_triple']:.6g}, p_max_Pa={self.p_max_Pa:.6g}) Pa "
@@ -87,6 +114,14 @@ class Domain:
             raise ValueError(
                 f"Domain.p_max_Pa / metastable_K: T_sat(p_max)={T_sat_hi:.4f} K plus metastable_K must stay "
                 f"below the {name} critical temperature {lim['T_crit']:.4f} K"
+            )
+        # The metastable branches end at the spinodals, closest to saturation at high pressure.
+        m_max = min(_max_metastable_K(name, float(self.p_max_Pa)), _max_metastable_K(name, float(self.p_min_Pa)))
+        m_max = math.floor(m_max * 100.0) / 100.0
+        if self.metastable_K > m_max:
+            raise ValueError(
+                f"Domain.metastable_K must be in [0, {m_max:.2f}] K for p_max_Pa={self.p_max_Pa:.6g} "
+                f"(beyond, CoolProp's {name} single-phase branch ends: spinodal), got {self.metastable_K}"
             )
         if not lim["T_triple"] < self.T_l_min_K < T_sat_lo:
             raise ValueError(

@@ -31,8 +31,9 @@ from .model import RBF_OUTPUTS, Surrogate, _Phase, evaluate_phase
 from .peng_robinson import PengRobinson, TaylorTemperature
 from .rbf import SHAPE_FREE_KERNELS, fit_rbf
 from .saturation import fit_saturation
+from ._threads import single_threaded
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # bump when the meaning of a cached file changes (the hash includes it)
 PHASES = ("vapor", "liquid")
 _TOLERANCE = {"p": 1e-3, "T": 1e-3, "k": 1e-2, "mu": 1e-2, "cp": 1e-2, "beta": 1e-2}
 # Saturation polynomial range: a little beyond [p_min, p_max] so that states at the domain's edge
@@ -91,7 +92,10 @@ def _candidates(config: SurrogateConfig) -> list[tuple[str, float, str]]:
     methods = ("lstsq", "interp") if config.method == "auto" else (config.method,)
     out = []
     for k in kernels:
-        shapes = [0.0] if k in SHAPE_FREE_KERNELS else (list(config.eps_grid) if config.kernel == "auto" else [config.eps])
+        if k in SHAPE_FREE_KERNELS:
+            shapes = [0.0]
+        else:
+            shapes = list(config.eps_grid) if config.kernel == "auto" else [config.eps]
         out += [(k, e, m) for e in shapes for m in methods]
     return out
 
@@ -171,7 +175,14 @@ def fit_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
     Raises:
         ValueError: unknown fluid or invalid domain. RuntimeError: a fit that misses the tolerances
         by more than 10x on held-out points (a warning is issued when it misses them at all).
+
+    Runs with one torch thread (restored afterwards); ~1-2 s on a 2-core machine.
     """
+    with single_threaded():
+        return _fit(fluid_name, domain, config)
+
+
+def _fit(fluid_name: str, domain: Domain, config: SurrogateConfig) -> Surrogate:
     start = time.perf_counter()
     fluid = CoolPropFluid(fluid_name)
     if domain.fluid_name != fluid_name:

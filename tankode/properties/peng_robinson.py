@@ -88,7 +88,8 @@ class PengRobinson:
         p = rep_T * T_K - att_alpha * m * m
         # d alpha/dT = -kappa m sqrt(T/T_c) / T
         dp_dT = rep_T + att_alpha * (self.kappa * m * sq / T_K)
-        dp_drho = (self.R_s * T_K) * inv_1mb * inv_1mb - (2.0 * self.a) * m * m * rho_kg_m3 * (1.0 + b_rho) * inv_D * inv_D
+        dp_drho = ((self.R_s * T_K) * inv_1mb * inv_1mb
+                   - (2.0 * self.a) * m * m * rho_kg_m3 * (1.0 + b_rho) * inv_D * inv_D)
         return p, dp_dT, dp_drho
 
 

@@ -32,6 +32,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ._threads import single_threaded
+
 KERNELS = ("gaussian", "multiquadric", "inverse_multiquadric", "polyharmonic3", "thin_plate")
 SHAPE_FREE_KERNELS = ("polyharmonic3", "thin_plate")
 _TINY = 1e-300  # keeps log(r2) finite at a centre; changes nothing for r2 > 1e-280
@@ -135,7 +137,6 @@ class RBFInterpolant(nn.Module):
         self.register_buffer("centres", centres)
         self.register_buffer("weights", weights)
         self.register_buffer("poly", poly)
-        # r2 = |s|^2 + |c|^2 - 2 s.c : one addmm instead of an (n, M, d) difference tensor.
         # r2 = |s|^2 + |c|^2 - 2 s.c as one addmm and one add, instead of an (n, M, d) difference
         # tensor; for the Gaussian the factor -eps^2 is folded in, so the addmm yields exp's argument.
         fold = -(self.eps**2) if kernel == "gaussian" else 1.0
@@ -307,7 +308,7 @@ def _tsvd_solve(A: Tensor, Y: Tensor, rcond: float) -> tuple[Tensor, int, float,
 def fit_rbf(x, y, centres, *, kernel: str, eps: float = 1.0, degree: int = 1, method: str = "lstsq",
             rcond: float = 1e-13, x_min=None, x_max=None,
             grad_outputs: tuple[int, ...] = ()) -> tuple[RBFInterpolant, RBFFitInfo]:
-    """Fit an ``RBFInterpolant`` to samples.
+    """Fit an ``RBFInterpolant`` to samples (the solve runs single-threaded: small dense matrices).
 
     Args:
         x: ``(N, d)`` sample inputs (input units).
@@ -327,6 +328,14 @@ def fit_rbf(x, y, centres, *, kernel: str, eps: float = 1.0, degree: int = 1, me
     Raises:
         ValueError: bad shapes/options. RuntimeError: non-finite or empty solution.
     """
+    with single_threaded():
+        return _fit_rbf(x, y, centres, kernel=kernel, eps=eps, degree=degree, method=method, rcond=rcond,
+                        x_min=x_min, x_max=x_max, grad_outputs=grad_outputs)
+
+
+def _fit_rbf(x, y, centres, *, kernel: str, eps: float = 1.0, degree: int = 1, method: str = "lstsq",
+            rcond: float = 1e-13, x_min=None, x_max=None,
+            grad_outputs: tuple[int, ...] = ()) -> tuple[RBFInterpolant, RBFFitInfo]:
     _check_kernel(kernel, eps)
     f64 = dict(dtype=torch.float64)
     X = torch.as_tensor(np.asarray(x, dtype=np.float64)) if not torch.is_tensor(x) else x.to(**f64)
