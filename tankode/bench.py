@@ -16,6 +16,7 @@ def forward_benchmark(repeats: int = 3) -> dict:
     from .cases import case1
     from .fleet import Fleet
     from .simulate import simulate
+    from .solver import AdaptiveRK
 
     run = case1()
     one = Fleet.from_runs([run])
@@ -28,6 +29,7 @@ def forward_benchmark(repeats: int = 3) -> dict:
 
     s1 = best(one)
     s8 = best(eight)
+    rk = min((simulate(one, solver=AdaptiveRK()) for _ in range(repeats)), key=lambda s: s.wall_time_s)
     return {
         "case1_simulated_s": float(s1.t_s[-1] - s1.t_s[0]),
         "case1_wall_s": s1.wall_time_s,
@@ -35,6 +37,8 @@ def forward_benchmark(repeats: int = 3) -> dict:
         "case1_rhs_evals": s1.stats.n_rhs_evals,
         "batch8_wall_s": s8.wall_time_s,
         "batch8_over_one_tank": s8.wall_time_s / s1.wall_time_s,
+        "case1_dopri5_real_time_factor": rk.real_time_factor,
+        "case1_dopri5_rhs_evals": rk.stats.n_rhs_evals,
         "torch_threads": torch.get_num_threads(),
     }
 
@@ -51,4 +55,24 @@ def run_benchmarks(n_points: int = 10_000, repeats: int = 3) -> dict:
     return result
 
 
-__all__ = ["run_benchmarks", "forward_benchmark"]
+def summary_lines(result: dict) -> list[str]:
+    """Human-readable lines of a ``run_benchmarks`` result (the JSON line follows them)."""
+    sur = result["surrogate"]
+    lines = [f"surrogate vs CoolProp on {sur['n_points_per_phase']} held-out points per phase "
+             "(max relative error; h_sat relative to the latent heat; target 1e-3):"]
+    names = ("p", "T", "T_sat", "h_lsat", "h_vsat", "k", "mu", "cp", "beta")
+    lines.append("  phase   " + " ".join(f"{n:>8s}" for n in names))
+    for phase, d in sur["phases"].items():
+        lines.append(f"  {phase:7s} " + " ".join(f"{d['max_rel_err'][n]:8.1e}" for n in names))
+    t = sur["timing"]
+    lines.append(f"  batched surrogate {t['surrogate_batched_s'] * 1e3:.2f} ms vs CoolProp loop "
+                 f"{t['coolprop_loop_s'] * 1e3:.1f} ms: {t['speed_ratio']:.0f}x faster (target >= 20x)")
+    f = result["forward"]
+    lines.append(f"forward case 1 (1 tank, reference closure, LSODA): {f['case1_simulated_s']:.0f} s simulated in "
+                 f"{f['case1_wall_s']:.3f} s, real-time factor {f['case1_real_time_factor']:.0f} (target >= 1000)")
+    lines.append(f"  dopri5 (the training solver): real-time factor {f['case1_dopri5_real_time_factor']:.0f}")
+    lines.append(f"  8 tanks batched: {f['batch8_wall_s']:.3f} s = {f['batch8_over_one_tank']:.2f}x one tank (target <= 2x)")
+    return lines
+
+
+__all__ = ["run_benchmarks", "forward_benchmark", "summary_lines"]

@@ -48,9 +48,10 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import run_benchmarks
+    from .bench import run_benchmarks, summary_lines
 
     result = run_benchmarks(n_points=args.points, repeats=args.repeats)
+    print("\n".join(summary_lines(result)))
     print(json.dumps(result))
     return 0
 

@@ -11,7 +11,8 @@ from .simulate import Solution
 OBS_COLUMNS = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
 
 
-def solution_to_runs(runs, solution: Solution, noise: str = "clean", seed: int = 0, channels=OBS_COLUMNS) -> list[Run]:
+def solution_to_runs(runs, solution: Solution, noise: str = "clean", seed: int = 0, channels=OBS_COLUMNS,
+                     model_name: str = "the reference closure") -> list[Run]:
     """One run per environment whose observations are the simulated h(s) plus noise.
 
     Args:
@@ -21,6 +22,7 @@ def solution_to_runs(runs, solution: Solution, noise: str = "clean", seed: int =
             level's (the low level's for clean data, as a nominal R).
         seed: noise seed; environment ``e`` uses ``seed + e`` so tanks get independent noise.
         channels: the observation columns to keep (others are left unmeasured).
+        model_name: what simulated it, for the run's ``source`` field.
 
     Each environment keeps the output times inside its own run's duration.
     """
@@ -34,7 +36,8 @@ def solution_to_runs(runs, solution: Solution, noise: str = "clean", seed: int =
         values[:, ~keep] = np.nan
         obs = add_noise(Observations(t[inside].copy(), values), noise, seed + e)
         std = nominal_R_std(noise)
-        note = f"simulated by tankode from {run.source or run.name!s}; noise: {noise} (seed {seed + e})"
+        note = (f"tankode simulation of run {run.name!r} from its initial state and inputs with {model_name}; "
+                f"noise: {noise} (seed {seed + e})")
         out.append(run.replace(
             observations=obs,
             noise_std={k: v for (k, v), c in zip(std.items(), OBS_COLUMNS) if c in channels},
