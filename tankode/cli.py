@@ -1,4 +1,4 @@
-"""Command line: ``tankode simulate``, ``tankode bench`` (more subcommands as they land)."""
+"""Command line: ``tankode simulate | assimilate | predict | bench``."""
 
 from __future__ import annotations
 
@@ -47,6 +47,63 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_assimilate(args) -> int:
+    from trainers.assimilate import AssimilationConfig, Assimilator
+
+    from .run import read_run
+    from .saved import load_model, save_model
+
+    runs = [read_run(p) for p in args.runs]
+    config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
+                                seed=args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    closure = None
+    if args.init is not None:
+        closure, _ = load_model(args.init)
+    assim = Assimilator(runs, config, closure=closure)
+    checkpoint = out / "checkpoint.pt"
+    if checkpoint.exists() and not args.resume:
+        raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
+
+    def report(r):
+        tag = f" ({r.note})" if r.note else ""
+        print(f"window {r.index + 1}/{len(assim.windows)} [{r.t0_s:.0f}, {r.t1_s:.0f}] s: J {r.cost_before:.4g} -> "
+              f"{r.cost_after:.4g}, {r.n_iters} iterations, {r.n_evals} evaluations, {r.wall_s:.1f} s{tag}", flush=True)
+
+    result = assim.run(checkpoint=checkpoint, resume=args.resume, logdir=args.logdir, progress=not args.quiet,
+                       on_window=report)
+    info = {"runs": [r.name for r in runs], "assimilation": config.to_json(),
+            "final_cost": result.reports[-1].cost_after if result.reports else None}
+    save_model(out, result.closure, runs[0].fluid, info)
+    print(f"wrote {out / 'model.json'}, {out / 'weights.pt'}")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    from .plotting import plot_run
+    from .run import read_run, write_run
+    from .saved import load_model
+    from .simulate import simulate
+    from .synthetic import solution_to_runs
+
+    closure, meta = load_model(args.model)
+    run = read_run(args.run)
+    if run.fluid != meta["fluid"]:
+        raise ValueError(f"model {args.model} is for {meta['fluid']}, run {args.run} is {run.fluid}")
+    sol = simulate(run, closure, output_dt_s=args.dt)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (pred,) = solution_to_runs(run, sol, noise="clean", model_name=f"the model in {args.model}")
+    json_path, csv_path = write_run(pred, out)
+    png = out / f"{pred.name}.png"
+    plot_run(png, pred, measured=run if len(run.observations) else None, title=f"{run.name}: prediction of {args.model}")
+    for note in sol.notes:
+        print(f"note: {note}")
+    print(f"wrote {json_path}, {csv_path}, {png}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench import run_benchmarks, summary_lines
 
@@ -66,6 +123,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="noise seed")
     s.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
     s.set_defaults(func=cmd_simulate)
+    a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
+    a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")
+    a.add_argument("--out", required=True, help="model directory (model.json, weights.pt, checkpoint.pt)")
+    a.add_argument("--window", type=float, default=600.0, help="window length in s (default 600)")
+    a.add_argument("--mode", choices=("fixed", "growing"), default="fixed", help="window mode (default fixed)")
+    a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
+    a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
+    a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
+    a.add_argument("--init", default=None, help="start from the agent of this model directory")
+    a.add_argument("--logdir", default=None, help="TensorBoard log directory")
+    a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
+    a.add_argument("--quiet", action="store_true", help="no progress bar")
+    a.set_defaults(func=cmd_assimilate)
+    pr = sub.add_parser("predict", help="predict a run from its initial state and inputs with a saved model")
+    pr.add_argument("model", help="model directory written by assimilate or diagnose")
+    pr.add_argument("run", help="run JSON (its observations, if any, are drawn for comparison)")
+    pr.add_argument("--out", required=True, help="output directory for the predicted run")
+    pr.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
+    pr.set_defaults(func=cmd_predict)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")
     b.add_argument("--points", type=int, default=10_000, help="held-out points for the surrogate benchmark")
     b.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")

@@ -32,7 +32,7 @@ from torch import Tensor
 
 from tankode.closures import MLPClosure, MLPConfig
 from tankode.fleet import Fleet
-from tankode.integrate import integrate, state_scale
+from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
 from tankode.solver import AdaptiveRK, Adjoint, Backprop
 
@@ -61,6 +61,9 @@ class AssimilationConfig:
         gradient: ``Adjoint()`` (default; memory independent of the step count) or ``Backprop()``.
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
+        max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
+            ODE too stiff to integrate within it is rejected (the update keeps the last good
+            weights) instead of stalling the real-time loop.
     """
 
     window_s: float = 600.0
@@ -74,6 +77,7 @@ class AssimilationConfig:
     gradient: Adjoint | Backprop = Adjoint()
     rtol: float = 1e-6
     atol: float = 1e-8
+    max_rhs_evals: int = 20_000
 
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -116,6 +120,7 @@ class WindowReport:
     n_evals: int
     n_iters: int
     wall_s: float
+    note: str = ""
 
 
 @dataclass
@@ -152,7 +157,7 @@ class Assimilator:
                                self.fleet.wall_heat_capacity_J_per_K)
         self.s0 = self.fleet.initial_state()
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3)
-        self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol)
+        self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
 
     # -- forward pieces ------------------------------------------------------------------------
@@ -206,9 +211,15 @@ class Assimilator:
                                 window))
         n_evals = n_iters = 0
         grad_norm = float("nan")
+        note = ""
         if len(window) > 0:
             for _ in range(n_outer):
-                res = opt.step(loss)
+                try:
+                    res = opt.step(loss)
+                except (SimulationError, FloatingPointError) as err:
+                    # BoundedLBFGS restored the weights of the step's start: keep them, say why.
+                    note = f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
+                    break
                 n_evals += res.n_evals
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
@@ -219,7 +230,7 @@ class Assimilator:
             after = float(terms.sum() / window.n_env)
             theta = self._theta(states, t_eval)
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
-                              n_evals, n_iters, time.perf_counter() - start)
+                              n_evals, n_iters, time.perf_counter() - start, note)
         return report, states[:, -1].detach().clone(), opt.state_dict()
 
     def _theta(self, states: Tensor, t: Tensor) -> Tensor:

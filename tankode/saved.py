@@ -1,0 +1,77 @@
+"""Saved models: a directory with ``model.json`` (configuration) and ``weights.pt`` (tensors).
+
+Loading never unpickles arbitrary objects: the configuration is JSON, the weights are read
+with ``torch.load(weights_only=True)`` and the closure is rebuilt from a known type name.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from .closures import ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation
+
+FORMAT = "tankode-model-1"
+
+
+def closure_spec(closure) -> dict:
+    """JSON description of a closure (type and configuration, not the weights)."""
+    if isinstance(closure, MLPClosure):
+        cfg = asdict(closure.config)
+        cfg["hidden"] = list(cfg["hidden"])
+        cfg["h_ref_W_m2K"] = list(cfg["h_ref_W_m2K"])
+        return {"type": "MLPClosure", "config": cfg}
+    if isinstance(closure, ReferenceClosure):
+        return {"type": "ReferenceClosure", "config": asdict(closure.correlation)}
+    if isinstance(closure, ConstantClosure):
+        return {"type": "ConstantClosure", "theta_W_m2K": closure.theta.tolist()}
+    raise TypeError(f"cannot save a closure of type {type(closure).__name__}")
+
+
+def closure_from_spec(spec: dict):
+    """Rebuild a closure (untrained weights) from ``closure_spec``."""
+    kind = spec.get("type")
+    if kind == "MLPClosure":
+        cfg = dict(spec["config"])
+        cfg["hidden"] = tuple(cfg["hidden"])
+        cfg["h_ref_W_m2K"] = tuple(cfg["h_ref_W_m2K"])
+        return MLPClosure(MLPConfig(**cfg))
+    if kind == "ReferenceClosure":
+        return ReferenceClosure(ReferenceCorrelation(**spec["config"]))
+    if kind == "ConstantClosure":
+        return ConstantClosure(spec["theta_W_m2K"])
+    raise ValueError(f"unknown closure type {kind!r} (known: MLPClosure, ReferenceClosure, ConstantClosure)")
+
+
+def save_model(model_dir, closure, fluid: str, info: dict | None = None) -> Path:
+    """Write ``model_dir/model.json`` and ``model_dir/weights.pt``; returns the directory."""
+    d = Path(model_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    meta = {"format": FORMAT, "fluid": fluid, "closure": closure_spec(closure), "info": info or {}}
+    torch.save({k: v.detach().clone() for k, v in closure.state_dict().items()}, d / "weights.pt")
+    (d / "model.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return d
+
+
+def load_model(model_dir):
+    """Return ``(closure, meta)`` from a saved model directory, validating its format."""
+    d = Path(model_dir)
+    path = d / "model.json"
+    if not path.exists():
+        raise FileNotFoundError(f"{d} is not a tankode model directory (no model.json)")
+    try:
+        meta = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}:{err.lineno}:{err.colno}: invalid JSON: {err.msg}") from None
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: format {meta.get('format')!r} is not {FORMAT!r}")
+    closure = closure_from_spec(meta["closure"])
+    weights = torch.load(d / "weights.pt", map_location="cpu", weights_only=True)
+    closure.load_state_dict(weights)
+    return closure, meta
+
+
+__all__ = ["save_model", "load_model", "closure_spec", "closure_from_spec"]

@@ -1,0 +1,136 @@
+"""Assimilation: the cost's weighting, windows, saved models, and exact resume after SIGKILL."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tankode.run import InitialState, Observations, Run, TankSpec, read_run, write_run
+from tankode.schedule import Schedule
+from tankode.simulate import simulate
+from tankode.synthetic import solution_to_runs
+from trainers.assimilate import AssimilationConfig, window_edges
+from trainers.cost import Window, cost, cost_terms
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _short_run(duration=180.0, name="short"):
+    return Run(
+        name=name, fluid="ParaHydrogen",
+        tank=TankSpec.from_dict({"shape": "vertical_cylinder", "radius_m": 0.9, "height_m": 2.2,
+                                 "wall_heat_capacity_J_per_K": 2.44e6}),
+        initial=InitialState(p_v_Pa=4.8e5, T_v_K=32.0, T_l_K=20.09, T_w_K=29.1, fill_ratio=0.65),
+        duration_s=duration,
+        inputs=Schedule.from_steps([(0, {}), (60, {"slosh_amplitude_m": 0.01, "slosh_frequency_Hz": 0.57})],
+                                   t_end=duration),
+    )
+
+
+def _data(run, noise="high", seed=0):
+    (obs,) = solution_to_runs(run, simulate(run), noise=noise, seed=seed)
+    return obs
+
+
+def test_window_edges():
+    assert window_edges(0.0, 3600.0, 600.0) == [(600.0 * k, 600.0 * (k + 1)) for k in range(6)]
+    assert window_edges(0.0, 1000.0, 600.0) == [(0.0, 600.0), (600.0, 1000.0)]
+
+
+def test_cost_is_half_a_chi_square_per_channel_at_the_noise_floor():
+    """A perfect model on noisy data: J ~ n_channels / 2 (the cost's normalisation)."""
+    run = _short_run(3600.0)
+    clean = _data(run, noise="clean")
+    noisy = _data(run, noise="high", seed=5)
+    w = Window.from_runs([noisy], 0.0, 3600.0)
+    pred = torch.as_tensor(np.nan_to_num(clean.observations.values), dtype=torch.float64)[None, 1:]
+    J = float(cost(pred, w))
+    assert J == pytest.approx(2.5, rel=0.1)  # 5 channels x 0.5, 360 samples each
+    terms = cost_terms(pred, w)
+    assert torch.allclose(w.weights.sum(1), torch.ones(1, 5, dtype=torch.float64))  # midpoint weights cover the window
+    assert ((terms - 0.5).abs() < 0.15).all()
+
+
+def test_cost_masks_missing_and_weighs_irregular_samples():
+    t = np.array([10.0, 20.0, 30.0, 90.0])
+    v = np.full((4, 5), np.nan)
+    v[:, 0] = 4.0e5  # p measured at all four times
+    v[3, 1] = 30.0  # T_v only at t = 90
+    run = _short_run().replace(observations=Observations(t, v), noise_std={"p_v": 1000.0, "T_v": 0.5})
+    w = Window.from_runs([run], 0.0, 100.0)
+    # p: spans [0,15], [15,25], [25,60], [60,100]; T_v: the whole window on its one sample.
+    assert torch.allclose(w.weights[0, :, 0], torch.tensor([0.15, 0.10, 0.35, 0.40], dtype=torch.float64))
+    assert torch.allclose(w.weights[0, :, 1], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64))
+    pred = torch.zeros(1, 4, 5, dtype=torch.float64)
+    pred[0, :, 0] = 4.0e5 + 1000.0  # one sigma everywhere...
+    pred[0, 2, 0] = 4.0e5 + 2000.0  # ...two at t = 30
+    pred[0, 3, 1] = 31.0  # two sigma on T_v
+    pred[0, :, 2:] = 1e6  # unmeasured channels must not count
+    terms = cost_terms(pred, w)
+    assert terms[0, 0].item() == pytest.approx(0.5 * (0.15 + 0.10 + 0.40) * 1.0 + 0.5 * 0.35 * 4.0)
+    assert terms[0, 1].item() == pytest.approx(0.5 * 4.0)
+    assert (terms[0, 2:] == 0).all()
+    # Mini-batches are unbiased: the mean over all masks of one size equals the full cost.
+    import itertools
+
+    full = float(cost(pred, w))
+    masks = [torch.tensor([i in c for i in range(4)]) for c in itertools.combinations(range(4), 2)]
+    assert np.mean([float(cost(pred, w, m)) for m in masks]) == pytest.approx(full, rel=1e-12)
+
+
+def test_config_round_trip_and_validation():
+    cfg = AssimilationConfig(mode="growing", batch_fraction=0.5)
+    assert AssimilationConfig.from_json(cfg.to_json()) == cfg
+    with pytest.raises(ValueError, match="mode"):
+        AssimilationConfig(mode="sliding")
+    with pytest.raises(ValueError, match="batch_fraction"):
+        AssimilationConfig(batch_fraction=0.0)
+
+
+def _cli(*args, **kw):
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "tankode.cli", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **kw)
+
+
+def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
+    data = _data(_short_run(240.0))
+    json_path, _ = write_run(data, tmp_path / "data")
+    args = [str(json_path), "--window", "60", "--iters", "3", "--batch", "0.5", "--quiet"]
+    ref = _cli("assimilate", *args, "--out", str(tmp_path / "ref"))
+    out_ref, _ = ref.communicate(timeout=600)
+    assert ref.returncode == 0, out_ref.decode()
+
+    killed = _cli("assimilate", *args, "--out", str(tmp_path / "k"))
+    ck = tmp_path / "k" / "checkpoint.pt"
+    deadline = time.time() + 600
+    while not ck.exists() and time.time() < deadline and killed.poll() is None:
+        time.sleep(0.05)
+    assert ck.exists(), "no checkpoint was written"
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert killed.returncode == -signal.SIGKILL
+    assert not (tmp_path / "k" / "weights.pt").exists()  # really interrupted before the end
+    again = _cli("assimilate", *args, "--out", str(tmp_path / "k"))
+    out_again, _ = again.communicate(timeout=600)
+    assert again.returncode == 2 and b"--resume" in out_again  # refuses to silently restart
+    resumed = _cli("assimilate", *args, "--out", str(tmp_path / "k"), "--resume")
+    out_res, _ = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, out_res.decode()
+    a = torch.load(tmp_path / "ref" / "weights.pt", weights_only=True)
+    b = torch.load(tmp_path / "k" / "weights.pt", weights_only=True)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    # ...and the prediction of the saved model works from the run's initial state and inputs.
+    p = _cli("predict", str(tmp_path / "k"), str(json_path), "--out", str(tmp_path / "pred"))
+    out_p, _ = p.communicate(timeout=600)
+    assert p.returncode == 0, out_p.decode()
+    pred = read_run(tmp_path / "pred" / "short.json")
+    assert len(pred.observations) > 0
