@@ -444,3 +444,34 @@ def test_result_fields_are_consistent():
     assert r.loss_before == pytest.approx(1.7 ** 2) and r.loss_after == 1.0
     assert r.proj_grad_norm == 0.0 and r.grad_norm < 1e-7
     assert math.isclose(r.batch_fraction, 1.0) and r.n_evals >= r.n_iters >= 1
+
+
+def test_rejected_trial_points_make_the_line_search_backtrack():
+    """A region where the loss cannot be evaluated (an ODE that blows up) is stepped around."""
+
+    class Infeasible(RuntimeError):
+        pass
+
+    def problem():
+        w = torch.tensor([0.0], dtype=torch.float64, requires_grad=True)
+        seen = []
+
+        def closure():
+            seen.append(float(w.detach()))
+            if seen[-1] > 1.5:  # the minimum at 2 lies beyond a wall the model cannot cross
+                raise Infeasible("cannot integrate")
+            return (w - 2.0).pow(2).sum()
+
+        return w, seen, closure
+
+    w, seen, closure = problem()
+    opt = BoundedLBFGS({"w": w}, {"w": Box(-10.0, 10.0)}, max_iter=30, reject=(Infeasible,))
+    res = opt.step(closure)
+    assert 1.3 < float(w.detach()) <= 1.5  # as close to the optimum as the feasible region allows
+    assert res.loss_after < 1.0 and any(v > 1.5 for v in seen)
+    # Without the policy the same failure propagates and the step is undone.
+    w, seen, closure = problem()
+    opt = BoundedLBFGS({"w": w}, {"w": Box(-10.0, 10.0)}, max_iter=30)
+    with pytest.raises(Infeasible):
+        opt.step(closure)
+    assert float(w.detach()) == 0.0

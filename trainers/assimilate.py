@@ -204,8 +204,11 @@ class Assimilator:
             batch = MiniBatch(fraction=cfg.batch_fraction, n_samples=len(window), seed=cfg.seed * 100_003 + k,
                               history=ResetHistory())
             n_outer, per_step = max(1, cfg.iters // cfg.iters_per_batch), cfg.iters_per_batch
+        # A trial agent whose ODE (or its adjoint) cannot be integrated is an infeasible point
+        # of the line search, not a failure of the update.
         opt = BoundedLBFGS(self.closure, uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound),
-                           max_iter=per_step, history_size=cfg.history_size, batch=batch)
+                           max_iter=per_step, history_size=cfg.history_size, batch=batch,
+                           reject=(SimulationError, AssertionError))
         with torch.no_grad():
             before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, Backprop())[:, obs_index]),
                                 window))

@@ -105,6 +105,9 @@ _CAP = 0.05
 # A parameter counts as "at" a bound when within this fraction of its box width of it. The fold
 # converges onto a bound optimum to ~ (eps * tolerance_grad / |g|)**2 / eps, far below.
 _ACTIVE_RTOL = 1e-9
+# Loss given to the line search at a rejected (infeasible) trial point: above any feasible loss,
+# finite so that torch's cubic interpolation stays finite.
+INFEASIBLE_LOSS = 1e30
 # torch.optim.LBFGS skips pairs with y.s <= 1e-10; the overlap pair uses the same safeguard.
 _MIN_CURVATURE = 1e-10
 
@@ -415,6 +418,13 @@ class BoundedLBFGS:
         tolerance_change: stop when a step or a loss change is below this.
         batch: mini-batch configuration; None means ``closure()`` is called without a mask and the
             history is kept across steps.
+        reject: exception types that mark a *trial point* as infeasible (e.g. an ODE that cannot
+            be integrated with those parameters). Raised by the closure or its backward at any
+            evaluation but a step's first, they make that point's loss huge (``INFEASIBLE_LOSS``;
+            +inf would turn torch's cubic interpolation into NaN) with a zero gradient: torch's
+            strong-Wolfe search then brackets it and shrinks back towards feasible points,
+            and a non-finite loss is treated the same way. At a step's first evaluation they
+            propagate (there is no feasible point to fall back on). Counted in ``n_rejected``.
 
     Memory: besides torch's history (``2 * history_size`` flat vectors), one step keeps the point
     and both gradients of each of its closure calls (3 flat vectors per call), to report the end
@@ -427,7 +437,8 @@ class BoundedLBFGS:
 
     def __init__(self, params: NamedParams, bounds: Mapping[str, Box], *, max_iter: int = 20,
                  max_eval: int | None = None, history_size: int = 10, tolerance_grad: float = 1e-9,
-                 tolerance_change: float = 1e-12, batch: MiniBatch | None = None):
+                 tolerance_change: float = 1e-12, batch: MiniBatch | None = None,
+                 reject: tuple[type[BaseException], ...] = ()):
         named = _named_params(params)
         if not named:
             raise ValueError("BoundedLBFGS: no parameters to train")
@@ -484,6 +495,8 @@ class BoundedLBFGS:
         self._n_steps = 0
         self._n_evals = 0
         self._trace: list[_Eval] | None = None
+        self._reject = tuple(reject)
+        self._n_rejected = 0
         with torch.no_grad():
             self._write_params()
 
@@ -646,16 +659,27 @@ class BoundedLBFGS:
             self._write_params()
             for p in self._params:
                 p.grad = None
-        with torch.enable_grad():
-            loss = closure() if mask is None else closure(mask)
-            if not (isinstance(loss, Tensor) and loss.numel() == 1 and loss.requires_grad):
-                raise TypeError("the closure must return a scalar loss tensor that requires grad")
-            if any(p.grad is not None for p in self._params):
-                raise RuntimeError("the closure must not call backward(): BoundedLBFGS back-propagates itself")
-            if not torch.isfinite(loss.detach()).all():
-                raise FloatingPointError(f"non-finite loss {loss.item()} at closure call {self._n_evals + 1} "
-                                         f"of step {self._n_steps + 1}")
-            loss.backward()
+        try:
+            with torch.enable_grad():
+                loss = closure() if mask is None else closure(mask)
+                if not (isinstance(loss, Tensor) and loss.numel() == 1 and loss.requires_grad):
+                    raise TypeError("the closure must return a scalar loss tensor that requires grad")
+                if any(p.grad is not None for p in self._params):
+                    raise RuntimeError("the closure must not call backward(): BoundedLBFGS back-propagates itself")
+                if not torch.isfinite(loss.detach()).all():
+                    raise FloatingPointError(f"non-finite loss {loss.item()} at closure call {self._n_evals + 1} "
+                                             f"of step {self._n_steps + 1}")
+                loss.backward()
+        except self._reject + ((FloatingPointError,) if self._reject else ()):
+            if self._n_evals == 0:
+                raise
+            # An infeasible trial point: infinitely bad, so the line search backtracks from it.
+            self._n_evals += 1
+            self._n_rejected += 1
+            with torch.no_grad():
+                for z in self._z:
+                    z.grad = torch.zeros_like(z)
+            return torch.tensor(INFEASIBLE_LOSS, dtype=self._z[0].dtype), [torch.zeros_like(p) for p in self._params]
         self._n_evals += 1
         with torch.no_grad():
             grad_w = [p.grad if p.grad is not None else torch.zeros_like(p) for p in self._params]
