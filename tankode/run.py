@@ -700,6 +700,23 @@ class Run:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    def until(self, t_end_s: float) -> "Run":
+        """The run cut at ``t_end_s`` [s]: observations up to it, inputs changing before it.
+
+        For training parts, held-out splits and quick studies; ``t_end_s`` must lie inside the run.
+        """
+        t_end_s = float(t_end_s)
+        if not self.t0_s < t_end_s <= self.t_end_s:
+            raise RunValueError("t_end_s", f"must lie in ({self.t0_s!r}, {self.t_end_s!r}] s, got {t_end_s!r}")
+        obs = self.observations
+        keep = obs.t_s <= t_end_s
+        inputs = self.inputs
+        if inputs is not None:
+            rows = inputs.t_s < t_end_s
+            inputs = Schedule(inputs.t_s[rows], inputs.values[rows])
+        return self.replace(observations=Observations(obs.t_s[keep], obs.values[keep]), inputs=inputs,
+                            duration_s=t_end_s - self.t0_s)
+
 
 def _check_initial_for_fluid(initial: InitialState, fluid: str) -> None:
     for name in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):

@@ -8,6 +8,17 @@ from dataclasses import dataclass
 _METHODS = ("dopri5", "bosh3", "dopri8", "adaptive_heun")
 
 
+def _check_budget(solver) -> None:
+    """Validate the tolerances and the evaluation budget shared by the solver strategies."""
+    name = type(solver).__name__
+    for field in ("rtol", "atol"):
+        v = getattr(solver, field)
+        if not (math.isfinite(v) and 0 < v < 1):
+            raise ValueError(f"{name}.{field} must be in (0, 1), got {v}")
+    if solver.max_rhs_evals < 10:
+        raise ValueError(f"{name}.max_rhs_evals must be >= 10, got {solver.max_rhs_evals}")
+
+
 @dataclass(frozen=True)
 class AdaptiveRK:
     """An adaptive Runge-Kutta solver from torchdiffeq on the scaled state.
@@ -34,12 +45,7 @@ class AdaptiveRK:
     def __post_init__(self):
         if self.method not in _METHODS:
             raise ValueError(f"AdaptiveRK.method must be one of {_METHODS}, got {self.method!r}")
-        for name in ("rtol", "atol"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 0 < v < 1):
-                raise ValueError(f"AdaptiveRK.{name} must be in (0, 1), got {v}")
-        if self.max_rhs_evals < 10:
-            raise ValueError(f"AdaptiveRK.max_rhs_evals must be >= 10, got {self.max_rhs_evals}")
+        _check_budget(self)
 
 
 @dataclass(frozen=True)
@@ -62,12 +68,7 @@ class LSODA:
     max_rhs_evals: int = 200_000
 
     def __post_init__(self):
-        for name in ("rtol", "atol"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 0 < v < 1):
-                raise ValueError(f"LSODA.{name} must be in (0, 1), got {v}")
-        if self.max_rhs_evals < 10:
-            raise ValueError(f"LSODA.max_rhs_evals must be >= 10, got {self.max_rhs_evals}")
+        _check_budget(self)
 
 
 @dataclass(frozen=True)

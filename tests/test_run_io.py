@@ -443,3 +443,18 @@ def test_schedule_misc():
         Schedule.from_steps([(0, {}), (10, {"Q_aw_W": 1.0})], t_end=10)
     with pytest.raises(ValueError, match="shape"):
         Schedule(np.array([0.0]), np.zeros((1, 3)))
+
+
+def test_until_cuts_observations_and_inputs():
+    from tankode.cases import case1
+    from tankode.simulate import simulate
+    from tankode.synthetic import solution_to_runs
+
+    run = case1()
+    (data,) = solution_to_runs(run, simulate(run))
+    cut = data.until(1000.0)
+    assert cut.t_end_s == 1000.0 and cut.observations.t_s[-1] == 1000.0
+    assert list(cut.inputs.t_s) == [0.0, 600.0]
+    np.testing.assert_array_equal(cut.inputs.at(900.0), data.inputs.at(900.0))
+    with pytest.raises(ValueError, match="t_end_s"):
+        data.until(5000.0)
