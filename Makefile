@@ -16,7 +16,10 @@ $(STAMP): pyproject.toml constraints.txt
 setup: $(STAMP)
 
 demo: $(STAMP)
+	rm -rf demo_out
 	$(VENV)/bin/tankode simulate case1 --out demo_out --noise high --seed 0
+	$(VENV)/bin/tankode assimilate demo_out/case1.json --out demo_out/agent --iters 5 --logdir demo_out/tensorboard
+	$(VENV)/bin/tankode predict demo_out/agent demo_out/case1.json --out demo_out/prediction
 	$(VENV)/bin/tankode bench
 
 test: $(STAMP)

@@ -90,17 +90,22 @@ class Fleet:
         liquid branch even if slightly superheated (a metastable state), as measured runs have.
         """
         ini = [r.initial for r in self.runs]
-        p = np.array([i.p_v_Pa for i in ini])
-        vap = self.reference.state_pT(p, np.array([i.T_v_K for i in ini]), "vapor")
-        liq = self.reference.state_pT(p, np.array([i.T_l_K for i in ini]), "liquid")
         V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
-        V_l = V * np.array([i.fill_ratio for i in ini])
-        V_v = V - V_l
-        s0 = np.stack([
+        return self.state_from(
+            np.array([i.p_v_Pa for i in ini]), np.array([i.T_v_K for i in ini]), np.array([i.T_l_K for i in ini]),
+            np.array([i.T_w0_K for i in ini]), V * np.array([i.fill_ratio for i in ini]))
+
+    def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:
+        """State ``(env, 7)`` from per-environment (p_v, T_v, T_l, T_w, V_l) arrays, via CoolProp."""
+        vap = self.reference.state_pT(np.asarray(p_v_Pa, float), np.asarray(T_v_K, float), "vapor")
+        liq = self.reference.state_pT(np.asarray(p_v_Pa, float), np.asarray(T_l_K, float), "liquid")
+        V_l = np.asarray(V_l_m3, float)
+        V_v = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env) - V_l
+        s = np.stack([
             np.asarray(vap["rho"]) * V_v, np.asarray(liq["rho"]) * V_l, vap["u"], liq["u"],
-            np.array([i.T_w0_K for i in ini]), V_v, V_l,
+            np.asarray(T_w_K, float), V_v, V_l,
         ], axis=-1)
-        return torch.as_tensor(s0, dtype=torch.float64)
+        return torch.as_tensor(s, dtype=torch.float64)
 
     def breakpoints(self, t0: float, t1: float) -> list[float]:
         """Times in (t0, t1) where any run's inputs change: where the solver must restart."""

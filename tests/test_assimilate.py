@@ -14,6 +14,7 @@ import torch
 from tankode.run import InitialState, Observations, Run, TankSpec, read_run, write_run
 from tankode.schedule import Schedule
 from tankode.simulate import simulate
+from tankode.solver import NoGradient
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, window_edges
 from trainers.cost import Window, cost, cost_terms
@@ -134,3 +135,30 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
     assert p.returncode == 0, out_p.decode()
     pred = read_run(tmp_path / "pred" / "short.json")
     assert len(pred.observations) > 0
+
+
+def test_fixed_window_start_takes_measured_channels_from_the_data():
+    """window_start="data": measured channels at t_k come from a line fit of the previous window."""
+    from tankode.closures import ConstantClosure
+    from trainers.assimilate import Assimilator
+
+    run = _short_run(240.0)
+    truth = simulate(run)
+    data = _data(run, noise="clean")
+    # A model far from the truth: its own propagated state would be wrong at t_k.
+    wrong = ConstantClosure([50.0, 200.0, 500.0, 1000.0])
+    a = Assimilator([data], AssimilationConfig(window_s=60.0, window_start="data"), closure=wrong)
+    with torch.no_grad():
+        s_model = a.predict(a.s0, 0.0, torch.tensor([0.0, 120.0], dtype=torch.float64), NoGradient())[:, -1]
+        t_k, s_start = a._span(2, s_model)
+        assert t_k == 120.0
+        got = a.model.observe(s_start)[0]
+        model_obs = a.model.observe(s_model)[0]
+    k = int(torch.argmin((truth.t_s - 120.0).abs()))
+    true_obs = truth.observations[0, k]
+    # Pressure and temperatures back on the truth (a 60 s line fit of smooth clean data)...
+    assert abs(float(got[0] - true_obs[0])) < 300.0 < abs(float(model_obs[0] - true_obs[0]))
+    assert (got[1:4] - true_obs[1:4]).abs().max() < 0.02
+    assert abs(float(got[4] - true_obs[4])) < 2e-4
+    with pytest.raises(ValueError, match="window_start"):
+        AssimilationConfig(window_start="truth")
