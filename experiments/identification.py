@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -44,10 +45,13 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two windows, 3 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/identification")
+    ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
+    ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
+    config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start)
 
     run = get_case(CASE)
     if args.quick:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -60,10 +61,11 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one short window, 2 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/multi_environment")
+    ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    config = QUICK if args.quick else FULL
+    config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start)
     (validation,) = _data([VALIDATION], args.quick)
 
     agents, table = {}, {}
