@@ -108,7 +108,18 @@ def cmd_bench(args) -> int:
     from .bench import run_benchmarks, summary_lines
 
     result = run_benchmarks(n_points=args.points, repeats=args.repeats)
-    print("\n".join(summary_lines(result)))
+    lines = summary_lines(result)
+    if args.training:
+        from trainers.bench import run_training_benchmarks
+
+        result["training"] = tr = run_training_benchmarks()
+        w, m = tr["window_update"], tr["adjoint_memory"]
+        lines.append(f"window update: {w['n_tanks']} tanks, {w['window_s']:.0f} s window, {w['iters']} iterations "
+                     f"({w['function_evals']} evaluations) in {w['update_wall_s']:.1f} s: real-time factor "
+                     f"{w['real_time_factor']:.1f} (target >= 10)")
+        lines.append(f"autograd memory vs horizon {m['lengths_s']} s: adjoint {m['adjoint_bytes']} B, "
+                     f"backprop {m['backprop_bytes']} B")
+    print("\n".join(lines))
     print(json.dumps(result))
     return 0
 
@@ -145,6 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")
     b.add_argument("--points", type=int, default=10_000, help="held-out points for the surrogate benchmark")
     b.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
+    b.add_argument("--training", action="store_true", help="also time a window update and measure adjoint memory (~1 min)")
     b.set_defaults(func=cmd_bench)
     return p
 

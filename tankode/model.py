@@ -21,13 +21,14 @@ the vapour at ``h_v,sat``; condensate (``J < 0``) leaves the vapour at ``h_v,sat
 the liquid at ``h_l,sat``. Then ``d/dt (m_v u_v + m_l u_l + C_w T_w)`` equals exactly the
 enthalpy carried by the external flows plus ``Q_aw``: total mass and energy are conserved.
 
-Departures from the printed paper: (1) the sign of the phase-change flux: the printed balance
-makes heat arriving at the interface condense vapour; here it evaporates liquid (``J > 0``),
-so a superheated ullage over a subcooled liquid condenses only when the liquid side draws more
-heat than the vapour side brings. (2) The enthalpy the condensate carries: the printed form
-lets the phase-change mass carry the bulk phase's enthalpy on one side and a saturation
-enthalpy on the other, which creates or destroys energy at the interface; here both sides use
-the saturation enthalpies so the interface energy balance closes.
+Departures from the printed paper. Its balances have two slips, in the sign of the
+phase-change flux and in the enthalpy the condensate carries; implemented literally they make
+heat arriving at the interface condense vapour and let the interface create or destroy energy.
+tankode uses the thermodynamically consistent form above: heat reaching the interface
+evaporates (``J > 0``), so a superheated ullage over a subcooled liquid condenses only when the
+liquid side draws more heat than the vapour side brings, and the phase-change mass carries the
+saturation enthalpies on both sides, so the interface energy balance closes exactly
+(``tests/test_model.py`` checks conservation and the direction of phase change).
 
 Volume split. Both phases share ``p``, so ``W = dV_l/dt`` is the rate that keeps
 ``dp_l/dt = dp_v/dt`` given the surrogate's ``dp/du`` and ``dp/drho`` of each phase (an index
@@ -46,7 +47,6 @@ from torch import Tensor, nn
 
 from .closures.base import Closure, ClosureInputs
 from .forcing import Forcing
-from .state import N_STATE
 
 
 class Fluxes(NamedTuple):
@@ -167,7 +167,5 @@ class TankModel(nn.Module):
             cw = cw[:, None]  # (env, 1) against (env, time)
         return s[..., 0] * s[..., 2] + s[..., 1] * s[..., 3] + cw * s[..., 4]
 
-
-assert N_STATE == 7
 
 __all__ = ["TankModel", "Fluxes"]

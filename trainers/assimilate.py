@@ -42,10 +42,11 @@ from tankode.closures import MLPClosure, MLPConfig
 from tankode.fleet import Fleet
 from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
-from tankode.solver import AdaptiveRK, Adjoint, Backprop
+from tankode.solver import AdaptiveRK, Adjoint, Backprop, NoGradient
 
 from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
+from .evaluate import theta_along
 from .lbfgs import BoundedLBFGS, MiniBatch, ResetHistory, uniform_box
 
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop}
@@ -225,7 +226,7 @@ class Assimilator:
                 t, v = run.observations.t_s, run.observations.values[:, c]
                 sel = (t >= t0) & (t <= t1) & np.isfinite(v)
                 if sel.sum() >= 3:
-                    slope, intercept = np.polyfit(t[sel] - t1, v[sel], 1)
+                    _, intercept = np.polyfit(t[sel] - t1, v[sel], 1)
                     obs[e, c] = intercept
         V_l = self.fleet.geometry.volume_at_level(torch.as_tensor(obs[:, 4])).detach().numpy()
         return self.fleet.state_from(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], V_l)
@@ -265,7 +266,7 @@ class Assimilator:
                            max_iter=per_step, history_size=cfg.history_size, batch=batch,
                            reject=(SimulationError, AssertionError))
         with torch.no_grad():
-            before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, Backprop())[:, obs_index]),
+            before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]),
                                 window))
         n_evals = n_iters = 0
         grad_norm = float("nan")
@@ -282,22 +283,14 @@ class Assimilator:
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
         with torch.no_grad():
-            states = self.predict(s_start, t_start, t_eval, Backprop())
+            states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])
             terms = cost_terms(pred, window)
             after = float(terms.sum() / window.n_env)
-            theta = self._theta(states, t_eval)
+            theta = theta_along(self.model, self.fleet, t_eval, states)
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
                               n_evals, n_iters, time.perf_counter() - start, note)
         return report, states[:, -1].detach().clone(), opt.state_dict()
-
-    def _theta(self, states: Tensor, t: Tensor) -> Tensor:
-        """Closure output along a trajectory, ``(env, T, 4)``."""
-        out = []
-        for j in range(states.shape[1]):
-            f, _, _ = self.model.fluxes(states[:, j], self._forcing(float(t[j]), states[:, j]))
-            out.append(f.theta_W_m2K)
-        return torch.stack(out, dim=1)
 
     # -- the loop ------------------------------------------------------------------------------
 

@@ -9,7 +9,7 @@ import torch
 from tankode.cases import get_case
 from tankode.schedule import Schedule
 from tankode.simulate import simulate
-from tankode.solver import Adjoint, Backprop
+from tankode.solver import Adjoint, Backprop, NoGradient
 from tankode.synthetic import solution_to_runs
 
 from .assimilate import AssimilationConfig, Assimilator
@@ -31,7 +31,7 @@ def window_update_benchmark(n_tanks: int = 4, iters: int = 20, window_s: float =
     data = _data([f"case{i + 1}" for i in range(n_tanks)])
     a = Assimilator(data, AssimilationConfig(window_s=window_s, iters=iters, gradient=Adjoint()))
     with torch.no_grad():
-        s_next = a.predict(a.s0, 0.0, torch.tensor([0.0, window_s], dtype=torch.float64), Backprop())[:, -1]
+        s_next = a.predict(a.s0, 0.0, torch.tensor([0.0, window_s], dtype=torch.float64), NoGradient())[:, -1]
     report, _, _ = a.update(1, s_next)
     return {
         "n_tanks": n_tanks, "window_s": window_s, "iters": report.n_iters, "function_evals": report.n_evals,
@@ -77,7 +77,7 @@ def adjoint_memory_benchmark(lengths_s=(300.0, 600.0, 1200.0, 2400.0)) -> dict:
         orig = a.model.forward
         a.model.forward = lambda t, s, f: (calls.append(1), orig(t, s, f))[1]
         with torch.no_grad():
-            a.predict(a.s0, 0.0, t_eval, Backprop())
+            a.predict(a.s0, 0.0, t_eval, NoGradient())
         out["rhs_evals_forward"].append(len(calls))
     return out
 

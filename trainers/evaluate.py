@@ -33,18 +33,23 @@ def validation_cost(closure, runs) -> dict:
     return {"J": float(terms.sum() / len(runs)), "terms": terms.tolist(), "runs": [r.name for r in runs]}
 
 
-def closure_along(closure, runs, solution) -> torch.Tensor:
-    """Coefficients ``(env, T, 4)`` a closure gives along a simulated trajectory (W/(m^2 K))."""
-    fleet = Fleet.from_runs(runs)
-    model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K)
+def theta_along(model: TankModel, fleet: Fleet, t_s: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
+    """Coefficients ``(env, T, 4)`` (W/(m^2 K)) the model's closure gives along ``states`` ``(env, T, 7)``."""
     out = []
     with torch.no_grad():
-        for k, t in enumerate(solution.t_s.tolist()):
-            s = solution.states[:, k]
+        for k, t in enumerate(t_s.tolist()):
+            s = states[:, k]
             p = fleet.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p
             f, _, _ = model.fluxes(s, fleet.forcing(t, p))
             out.append(f.theta_W_m2K)
     return torch.stack(out, dim=1)
+
+
+def closure_along(closure, runs, solution) -> torch.Tensor:
+    """Coefficients ``(env, T, 4)`` a closure gives along a simulated trajectory (W/(m^2 K))."""
+    fleet = Fleet.from_runs(runs)
+    model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K)
+    return theta_along(model, fleet, solution.t_s, solution.states)
 
 
 def identification_error(closure, runs, truth_solution, during) -> dict:
@@ -67,4 +72,4 @@ def identification_error(closure, runs, truth_solution, during) -> dict:
             for i, n in enumerate(names)}
 
 
-__all__ = ["rmse_by_channel", "validation_cost", "closure_along", "identification_error"]
+__all__ = ["rmse_by_channel", "validation_cost", "theta_along", "closure_along", "identification_error"]
