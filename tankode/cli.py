@@ -1,4 +1,4 @@
-"""Command line: ``tankode simulate | assimilate | predict | bench``."""
+"""Command line: ``tankode simulate | assimilate | predict | bench | sensitivity``."""
 
 from __future__ import annotations
 
@@ -158,6 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
     b.add_argument("--training", action="store_true", help="also time a window update and measure adjoint memory (~1 min)")
     b.set_defaults(func=cmd_bench)
+    from .sensitivity import add_parser as add_sensitivity_parser
+
+    add_sensitivity_parser(sub)
     return p
 
 

@@ -114,7 +114,7 @@ def test_add_parser_defaults():
     assert (args.spread, args.n_base, args.seed, args.dt) == (0.1, 64, 0, 10.0) and callable(args.func)
 
 
-def test_reference_closure_unused_import_guard():
-    # ScaledClosure wraps the reference closure in sobol_indices; it must be an nn.Module child.
+def test_scaled_closure_registers_base_and_float64_factors():
+    # The base is a child module (moves with .to(), shows in named_children) and factors stay float64.
     c = ScaledClosure(ReferenceClosure(), torch.ones(2, 4, dtype=torch.float64))
     assert "base" in dict(c.named_children()) and c.factors.dtype == torch.float64
