@@ -624,11 +624,7 @@ class Run:
         if not isinstance(self.observations, Observations):
             raise RunValueError("observations", f"must be Observations, got {type(self.observations).__name__}")
         obs = self.observations
-        for j, ch in enumerate(OBS_CHANNELS):
-            k = _first_implausible(ch, obs.values[:, j], self.fluid)
-            if k is not None:
-                problem = _plausibility_problem(ch, float(obs.values[k, j]), self.fluid)
-                raise RunValueError(f"observations.{ch}", f"at t = {float(obs.t_s[k])!r} s: {problem}")
+        _check_columns_plausible("observations", OBS_CHANNELS, obs.t_s, obs.values, self.fluid)
         for ch in obs.measured_channels:
             if _NOISE_OF[ch] not in self.noise_std:
                 raise RunValueError(
@@ -641,11 +637,7 @@ class Run:
         if not isinstance(self.inputs, Schedule):
             raise RunValueError("inputs", f"must be a Schedule, got {type(self.inputs).__name__}")
         sched = self.inputs
-        for j, name in enumerate(INPUT_NAMES):
-            k = _first_implausible(name, sched.values[:, j], self.fluid)
-            if k is not None:
-                problem = _plausibility_problem(name, float(sched.values[k, j]), self.fluid)
-                raise RunValueError(f"inputs.{name}", f"at t = {float(sched.t_s[k])!r} s: {problem}")
+        _check_columns_plausible("inputs", INPUT_NAMES, sched.t_s, sched.values, self.fluid)
         t0 = sched.t0_s
         if len(obs) and obs.t_s[0] < t0:
             raise RunValueError(
@@ -716,6 +708,15 @@ class Run:
             inputs = Schedule(inputs.t_s[rows], inputs.values[rows])
         return self.replace(observations=Observations(obs.t_s[keep], obs.values[keep]), inputs=inputs,
                             duration_s=t_end_s - self.t0_s)
+
+
+def _check_columns_plausible(prefix: str, names, t_s: np.ndarray, values: np.ndarray, fluid: str) -> None:
+    """Raise RunValueError at the first value of any column that is implausible for the fluid."""
+    for j, name in enumerate(names):
+        k = _first_implausible(name, values[:, j], fluid)
+        if k is not None:
+            problem = _plausibility_problem(name, float(values[k, j]), fluid)
+            raise RunValueError(f"{prefix}.{name}", f"at t = {float(t_s[k])!r} s: {problem}")
 
 
 def _check_initial_for_fluid(initial: InitialState, fluid: str) -> None:
