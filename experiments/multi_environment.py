@@ -43,8 +43,8 @@ AGENTS = {"A1": ["case1"], "A23": ["case2", "case3"], "A234": ["case2", "case3",
 VALIDATION = "case5"
 PAPER_J = {"A1": 6.46, "A23": 4.38, "A234": 0.90}
 FULL = AssimilationConfig(window_s=600.0, mode="fixed", iters=20, batch_fraction=0.8, seed=SEED)
-QUICK = AssimilationConfig(window_s=600.0, mode="fixed", iters=2, batch_fraction=0.8, seed=SEED)
-QUICK_DURATION_S = 600.0
+QUICK = AssimilationConfig(window_s=300.0, mode="fixed", iters=2, batch_fraction=0.8, seed=SEED)
+QUICK_DURATION_S = 300.0
 # -----------------------------------------------------------------------------------------------
 
 
