@@ -16,7 +16,6 @@ can compare the model with exact solutions (``tests/test_model.py``):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch

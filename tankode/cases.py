@@ -17,7 +17,6 @@ multi-environment study.
 
 from __future__ import annotations
 
-import math
 
 from .closures.reference import first_slosh_frequency_Hz
 from .run import InitialState, Run, TankSpec

@@ -119,8 +119,13 @@ class Fleet:
         rows = [np.zeros(len(INPUT_NAMES)) if r.inputs is None else np.asarray(r.inputs.at(t_s)) for r in self.runs]
         return np.stack(rows)
 
-    def forcing(self, t_s: float, p_v_Pa: Tensor) -> Forcing:
-        """The ``Forcing`` in force from ``t_s`` on, given the ullage pressure ``(env,)`` there.
+    def segments(self, t0: float, t1: float) -> list[tuple[float, float]]:
+        """Contiguous ``(start, end)`` spans of [t0, t1] (s) with constant inputs: where the solver runs."""
+        cuts = [t0, *self.breakpoints(t0, t1), t1]
+        return list(zip(cuts[:-1], cuts[1:]))
+
+    def forcing(self, t_s: float, s: Tensor) -> Forcing:
+        """The ``Forcing`` in force from ``t_s`` on, for the state ``s`` ``(env, 7)`` there.
 
         Injected vapour enthalpy: CoolProp at the schedule's (p_v_in, T_v_in). Injected liquid:
         CoolProp at (current ullage pressure, T_l_in); the pressure is frozen at the segment's
@@ -134,7 +139,7 @@ class Fleet:
             h_v_in[on_v] = self.reference.state_pT(u[on_v, _I["p_v_in_Pa"]], u[on_v, _I["T_v_in_K"]], "vapor")["h"]
         on_l = u[:, _I["mdot_l_in_kg_s"]] > 0
         if on_l.any():
-            p = p_v_Pa.detach().numpy()[on_l]
+            p = self.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p.detach().numpy()[on_l]
             h_l_in[on_l] = self.reference.state_pT(p, u[on_l, _I["T_l_in_K"]], "liquid")["h"]
         t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
         return Forcing(

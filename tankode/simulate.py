@@ -13,7 +13,6 @@ from .closures import Closure, ReferenceClosure
 from .fleet import Fleet
 from .integrate import IntegrationStats, SimulationError, integrate, state_scale
 from .model import TankModel
-from .run import Run
 from .solver import LSODA, AdaptiveRK, NoGradient
 
 OBS_NAMES = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
@@ -95,16 +94,8 @@ def simulate(
     model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K)
     s0 = fleet.initial_state()
     t_out = output_times(fleet, output_dt_s, t_eval)
-    t0, t1 = fleet.t0_s, fleet.t_end_s
-    cuts = [t0, *fleet.breakpoints(t0, t1), t1]
-    segments = list(zip(cuts[:-1], cuts[1:]))
-
-    def forcing(t_start: float, s: Tensor):
-        p = fleet.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p
-        return fleet.forcing(t_start, p)
-
     start = time.perf_counter()
-    states, stats = integrate(model, s0, segments, forcing, t_out, state_scale(s0, fleet.geometry.volume_m3),
+    states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out, state_scale(s0, fleet.geometry.volume_m3),
                               solver, NoGradient())
     wall = time.perf_counter() - start
     with torch.no_grad():

@@ -195,16 +195,10 @@ class Assimilator:
 
     # -- forward pieces ------------------------------------------------------------------------
 
-    def _forcing(self, t: float, s: Tensor):
-        p = self.fleet.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p
-        return self.fleet.forcing(t, p)
-
     def predict(self, s_start: Tensor, t_start: float, t_eval: Tensor, gradient) -> Tensor:
         """States ``(env, T, 7)`` at ``t_eval`` integrating from ``s_start`` at ``t_start``."""
-        t_end = float(t_eval[-1])
-        cuts = [t_start, *self.fleet.breakpoints(t_start, t_end), t_end]
-        states, _ = integrate(self.model, s_start, list(zip(cuts[:-1], cuts[1:])), self._forcing, t_eval,
-                              self.scale, self.solver, gradient)
+        states, _ = integrate(self.model, s_start, self.fleet.segments(t_start, float(t_eval[-1])), self.fleet.forcing,
+                              t_eval, self.scale, self.solver, gradient)
         return states
 
     def _span(self, k: int, s_next: Tensor) -> tuple[float, Tensor]:

@@ -38,9 +38,7 @@ def theta_along(model: TankModel, fleet: Fleet, t_s: torch.Tensor, states: torch
     out = []
     with torch.no_grad():
         for k, t in enumerate(t_s.tolist()):
-            s = states[:, k]
-            p = fleet.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5]).p
-            f, _, _ = model.fluxes(s, fleet.forcing(t, p))
+            f, _, _ = model.fluxes(states[:, k], fleet.forcing(t, states[:, k]))
             out.append(f.theta_W_m2K)
     return torch.stack(out, dim=1)
 
