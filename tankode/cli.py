@@ -1,4 +1,4 @@
-"""Command line: ``tankode simulate | assimilate | predict | bench | sensitivity``."""
+"""Command line: ``tankode simulate | assimilate | predict | diagnose | bench | sensitivity``."""
 
 from __future__ import annotations
 
@@ -28,7 +28,12 @@ def cmd_simulate(args) -> int:
     from .synthetic import solution_to_runs
 
     run, measured = _load_case_or_run(args.run)
-    sol = simulate(run, output_dt_s=args.dt)
+    closure, mechanisms = None, ()
+    if args.model is not None:
+        from .saved import load_model
+
+        closure, mechanisms, _ = load_model(args.model)
+    sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     channels = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
@@ -58,10 +63,15 @@ def cmd_assimilate(args) -> int:
                                 seed=args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    closure = None
+    closure, mechanisms = None, ()
     if args.init is not None:
-        closure, _ = load_model(args.init)
-    assim = Assimilator(runs, config, closure=closure)
+        closure, mechanisms, _ = load_model(args.init)
+        if not any(p.requires_grad for p in closure.parameters()):
+            # e.g. a diagnosed model on the reference correlations: train a fresh agent with its mechanisms
+            print(f"note: the closure of {args.init} has no trainable weights; training a fresh MLP agent with "
+                  f"its mechanisms {[m.id for m in mechanisms]}")
+            closure = None
+    assim = Assimilator(runs, config, closure=closure, mechanisms=mechanisms)
     checkpoint = out / "checkpoint.pt"
     if checkpoint.exists() and not args.resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
@@ -75,7 +85,7 @@ def cmd_assimilate(args) -> int:
                        on_window=report)
     info = {"runs": [r.name for r in runs], "assimilation": config.to_json(),
             "final_cost": result.reports[-1].cost_after if result.reports else None}
-    save_model(out, result.closure, runs[0].fluid, info)
+    save_model(out, result.closure, runs[0].fluid, info, mechanisms=mechanisms)
     print(f"wrote {out / 'model.json'}, {out / 'weights.pt'}")
     return 0
 
@@ -87,11 +97,11 @@ def cmd_predict(args) -> int:
     from .simulate import simulate
     from .synthetic import solution_to_runs
 
-    closure, meta = load_model(args.model)
+    closure, mechanisms, meta = load_model(args.model)
     run = read_run(args.run)
     if run.fluid != meta["fluid"]:
         raise ValueError(f"model {args.model} is for {meta['fluid']}, run {args.run} is {run.fluid}")
-    sol = simulate(run, closure, output_dt_s=args.dt)
+    sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (pred,) = solution_to_runs(run, sol, noise="clean", model_name=f"the model in {args.model}")
@@ -101,6 +111,38 @@ def cmd_predict(args) -> int:
     for note in sol.notes:
         print(f"note: {note}")
     print(f"wrote {json_path}, {csv_path}, {png}")
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    from .diagnosis import DiagnosisConfig, HoldOutTail, LeaveOneRunOut, diagnose, write_report
+    from .mechanisms import MECHANISMS
+    from .run import read_run
+    from .saved import load_model
+
+    runs = [read_run(p) for p in args.runs]
+    closure, mechanisms = None, ()
+    if args.model is not None:
+        closure, mechanisms, meta = load_model(args.model)
+        if meta["fluid"] != runs[0].fluid:
+            raise ValueError(f"model {args.model} is for {meta['fluid']}, the runs are {runs[0].fluid}")
+    split = None
+    if args.split == "tail":
+        split = HoldOutTail(args.holdout)
+    elif args.split == "run":
+        split = LeaveOneRunOut()
+    candidates = tuple(args.candidates) if args.candidates else tuple(MECHANISMS)
+    config = DiagnosisConfig(candidates=candidates, split=split)
+    d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
+    paths = write_report(d, args.out, runs[0].fluid)
+    if d.cause:
+        c = d.ranking[0]
+        print(f"cause: {d.cause} {d.extended['params']} (held-out gain {c.heldout_gain:.2f}, "
+              f"95 % CI [{c.heldout_gain_ci[0]:.2f}, {c.heldout_gain_ci[1]:.2f}], dBIC {c.delta_bic:.1f})")
+    else:
+        print("cause: none (no candidate clears the evidence thresholds)")
+    print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "
+          f"{paths['md']}, {paths['model']}/")
     return 0
 
 
@@ -133,6 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--noise", choices=("clean", "low", "high"), default="clean", help="synthetic sensor noise level")
     s.add_argument("--seed", type=int, default=0, help="noise seed")
     s.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
+    s.add_argument("--model", default=None, help="a saved model directory (closure and mechanisms); default: the "
+                   "reference correlations")
     s.set_defaults(func=cmd_simulate)
     a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
     a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")
@@ -142,7 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
     a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
-    a.add_argument("--init", default=None, help="start from the agent of this model directory")
+    a.add_argument("--init", "--model", dest="init", default=None,
+                   help="start from this model directory (its closure, and its mechanisms kept fixed)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
     a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
     a.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -153,6 +198,16 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--out", required=True, help="output directory for the predicted run")
     pr.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
     pr.set_defaults(func=cmd_predict)
+    dg = sub.add_parser("diagnose", help="what the model gets wrong, which missing mechanism explains it, the gain")
+    dg.add_argument("runs", nargs="+", help="measured run JSON files of one tank")
+    dg.add_argument("--out", required=True, help="output directory (report.json, report.md, figures, model/)")
+    dg.add_argument("--model", default=None, help="start from this saved model (default: the reference correlations)")
+    dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
+                    help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
+    dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
+    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: all)")
+    dg.add_argument("--quiet", action="store_true", help="no progress lines")
+    dg.set_defaults(func=cmd_diagnose)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")
     b.add_argument("--points", type=int, default=10_000, help="held-out points for the surrogate benchmark")
     b.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")

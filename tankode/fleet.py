@@ -83,17 +83,27 @@ class Fleet:
             raise ValueError(f"runs of one fleet must start at the same time stamp, got {sorted(t0)} s")
         return t0.pop()
 
-    def initial_state(self) -> Tensor:
+    def initial_state(self, mechanisms=()) -> Tensor:
         """State ``(env, 7)`` from each run's initial (p_v, T_v, T_l, T_w, fill ratio), via CoolProp.
 
         Both phases are placed at the ullage pressure; the liquid's (u, rho) is taken on the
         liquid branch even if slightly superheated (a metastable state), as measured runs have.
+        The initial pressure is a sensor reading: the ``mechanisms``' pressure offsets (a bias,
+        an inert gas) at (T_v0, V_v0) are removed from it to get the hydrogen's pressure.
         """
         ini = [r.initial for r in self.runs]
         V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
-        return self.state_from(
-            np.array([i.p_v_Pa for i in ini]), np.array([i.T_v_K for i in ini]), np.array([i.T_l_K for i in ini]),
-            np.array([i.T_w0_K for i in ini]), V * np.array([i.fill_ratio for i in ini]))
+        T_v = np.array([i.T_v_K for i in ini])
+        V_l = V * np.array([i.fill_ratio for i in ini])
+        p = np.array([i.p_v_Pa for i in ini])
+        for m in mechanisms:
+            with torch.no_grad():
+                off = m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l))
+            p = p - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), p.shape)
+        if (p <= 0).any():
+            raise ValueError(f"initial hydrogen pressure {p} Pa is not positive after removing the mechanisms' "
+                             "pressure offsets from the initial reading")
+        return self.state_from(p, T_v, np.array([i.T_l_K for i in ini]), np.array([i.T_w0_K for i in ini]), V_l)
 
     def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:
         """State ``(env, 7)`` from per-environment (p_v, T_v, T_l, T_w, V_l) arrays, via CoolProp."""

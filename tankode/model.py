@@ -36,6 +36,13 @@ reduction of the algebraic constraint ``p_l(u_l, rho_l) = p_v(u_v, rho_v)``). Th
 liquid compressibility parameter and keeps ``V_v + V_l`` equal to the tank volume exactly.
 Only the derivative of the constraint is enforced, so a constant offset between the
 surrogate's liquid and vapour pressures (its fitting error) does not perturb the dynamics.
+
+Mechanisms. Effects the baseline leaves out (``tankode.mechanisms``: heat leaks, unmetered
+losses, sensor biases, ...) enter through hooks: the forcing actually applied, extra heat into
+each control volume (added to ``e_v``, ``e_l`` and the wall balance, so conservation holds with
+them as external inputs), a liquid surface warmer than the bulk in ``Q_li``, a factor on
+``C_w`` and an offset in the observed pressure. With every parameter at 0 the model is the
+baseline exactly.
 """
 
 from __future__ import annotations
@@ -47,6 +54,7 @@ from torch import Tensor, nn
 
 from .closures.base import Closure, ClosureInputs
 from .forcing import Forcing
+from .mechanisms import Mechanism
 
 
 class Fluxes(NamedTuple):
@@ -77,13 +85,23 @@ class TankModel(nn.Module):
             ``PhaseProps`` (``tankode.properties.Surrogate``).
         geometry: a ``TankGeometry`` whose dimensions are 0-d or shaped ``(env,)``.
         closure: the closure module theta = g(s; w).
-        wall_heat_capacity_J_per_K: m_w c_w, scalar or ``(env,)`` (J/K).
+        wall_heat_capacity_J_per_K: m_w c_w, scalar or ``(env,)`` (J/K); the nominal value
+            (a ``wall_heat_capacity_error`` mechanism multiplies it).
+        mechanisms: extra physical effects (``tankode.mechanisms``), none by default.
 
     Call ``model(t, s, forcing)`` with ``s`` of shape ``(env, 7)`` to get ``ds/dt`` ``(env, 7)``.
     """
 
-    def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K):
+    def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K, mechanisms=()):
         super().__init__()
+        mechanisms = tuple(mechanisms)
+        for m in mechanisms:
+            if not isinstance(m, Mechanism):
+                raise TypeError(f"mechanisms must be tankode.mechanisms.Mechanism instances, got {type(m).__name__}")
+        ids = [m.id for m in mechanisms]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"each mechanism may appear once, got {ids}")
+        self.mechanisms = nn.ModuleList(mechanisms)
         self.fluid = fluid
         self.geometry = geometry
         self.closure = closure
@@ -114,8 +132,9 @@ class TankModel(nn.Module):
             )
         )
         h_vi, h_li, h_wv, h_wl = theta.unbind(-1)
+        dT_surface = sum((m.interface_offset_K() for m in self.mechanisms), 0.0)
         Q_vi = h_vi * A_i * (pv.T - T_sat)
-        Q_li = h_li * A_i * (pl.T - T_sat)
+        Q_li = h_li * A_i * (pl.T + dT_surface - T_sat)
         Q_wv = h_wv * A_wv * (T_w - pv.T)
         Q_wl = h_wl * A_wl * (T_w - pl.T)
         J = (Q_vi + Q_li) / (pv.h_vsat - pv.h_lsat)
@@ -127,18 +146,45 @@ class TankModel(nn.Module):
         )
         return f, pv, pl
 
+    def applied_forcing(self, forcing: Forcing) -> Forcing:
+        """The operations actually applied: the metered ``forcing`` as the mechanisms change it."""
+        for m in self.mechanisms:
+            forcing = m.adjust_forcing(forcing)
+        return forcing
+
+    def extra_heat_W(self, s: Tensor):
+        """Mechanisms' heat into (vapour, liquid, wall), W, each broadcastable to ``(env,)``."""
+        q_v = q_l = q_w = 0.0
+        for m in self.mechanisms:
+            a, b, c = m.heat_W(s)
+            q_v, q_l, q_w = q_v + a, q_l + b, q_w + c
+        return q_v, q_l, q_w
+
+    @property
+    def effective_wall_heat_capacity_J_per_K(self) -> Tensor:
+        """m_w c_w times the mechanisms' factors (J/K)."""
+        cw = self.wall_heat_capacity_J_per_K
+        for m in self.mechanisms:
+            cw = cw * m.wall_capacity_factor()
+        return cw
+
+    def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor):
+        """Sensor pressure minus hydrogen pressure from the mechanisms (Pa), shaped like ``T_v_K``."""
+        return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
+
     def forward(self, t: Tensor, s: Tensor, forcing: Forcing) -> Tensor:
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
-        f, pv, pl = self.fluxes(s, forcing)
-        fc = forcing
+        fc = self.applied_forcing(forcing)
+        f, pv, pl = self.fluxes(s, fc)
+        q_v, q_l, q_w = self.extra_heat_W(s)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
         dm_l = fc.mdot_l_in_kg_s - fc.mdot_l_out_kg_s - J
         # Energy inflow to each phase except the volume work -p dV/dt.
         e_v = (fc.mdot_v_in_kg_s * fc.h_v_in_J_per_kg - fc.mdot_v_out_kg_s * f.h_v_J_per_kg
-               + J * f.h_vsat_J_per_kg + f.Q_wv_W - f.Q_vi_W)
+               + J * f.h_vsat_J_per_kg + f.Q_wv_W - f.Q_vi_W + q_v)
         e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
-               - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W)
+               - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W + q_l)
         # dp/dt of each phase is affine in W = dV_l/dt: a + b W (see module docstring).
         rho_v = m_v / V_v
         rho_l = m_l / V_l
@@ -149,20 +195,25 @@ class TankModel(nn.Module):
         W = (a_v - a_l) / (b_l - b_v)
         du_v = (e_v + p * W - u_v * dm_v) / m_v
         du_l = (e_l - p * W - u_l * dm_l) / m_l
-        dT_w = (fc.Q_aw_W - f.Q_wv_W - f.Q_wl_W) / self.wall_heat_capacity_J_per_K
+        dT_w = (fc.Q_aw_W + q_w - f.Q_wv_W - f.Q_wl_W) / self.effective_wall_heat_capacity_J_per_K
         return torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
 
     def observe(self, s: Tensor) -> Tensor:
-        """Observation operator h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]), shape ``(..., 5)``."""
+        """Observation operator h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]), shape ``(..., 5)``.
+
+        The pressure is what the sensor reads: the hydrogen pressure plus the mechanisms'
+        offsets (a bias, an inert gas's partial pressure).
+        """
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
         pv = self.fluid.vapor(u_v, m_v / V_v)
         pl = self.fluid.liquid(u_l, m_l / V_l)
         H_l = self.geometry.level_at_volume(V_l)
-        return torch.stack([pv.p, pv.T, pl.T, T_w, H_l], dim=-1)
+        p = pv.p + self.pressure_offset_Pa(pv.T, V_v)
+        return torch.stack([p, pv.T, pl.T, T_w, H_l], dim=-1)
 
     def total_energy_J(self, s: Tensor) -> Tensor:
         """m_v u_v + m_l u_l + C_w T_w (J) for ``s`` shaped ``(env, 7)`` or ``(env, time, 7)``."""
-        cw = self.wall_heat_capacity_J_per_K
+        cw = torch.as_tensor(self.effective_wall_heat_capacity_J_per_K)
         if cw.dim() == 1 and s.dim() == 3:
             cw = cw[:, None]  # (env, 1) against (env, time)
         return s[..., 0] * s[..., 2] + s[..., 1] * s[..., 3] + cw * s[..., 4]

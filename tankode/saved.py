@@ -12,9 +12,20 @@ from pathlib import Path
 
 import torch
 
-from .closures import ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation
+from typing import NamedTuple
+
+from .closures import ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation, ScaledClosure
+from .mechanisms import Mechanism, mechanisms_from_spec, mechanisms_spec
 
 FORMAT = "tankode-model-1"
+
+
+class SavedModel(NamedTuple):
+    """A loaded model: the closure, the mechanisms the model includes (with values) and the metadata."""
+
+    closure: object
+    mechanisms: tuple[Mechanism, ...]
+    meta: dict
 
 
 def closure_spec(closure) -> dict:
@@ -28,6 +39,8 @@ def closure_spec(closure) -> dict:
         return {"type": "ReferenceClosure", "config": asdict(closure.correlation)}
     if isinstance(closure, ConstantClosure):
         return {"type": "ConstantClosure", "theta_W_m2K": closure.theta.tolist()}
+    if isinstance(closure, ScaledClosure):
+        return {"type": "ScaledClosure", "base": closure_spec(closure.base), "factors": closure.factors.tolist()}
     raise TypeError(f"cannot save a closure of type {type(closure).__name__}")
 
 
@@ -43,21 +56,29 @@ def closure_from_spec(spec: dict):
         return ReferenceClosure(ReferenceCorrelation(**spec["config"]))
     if kind == "ConstantClosure":
         return ConstantClosure(spec["theta_W_m2K"])
-    raise ValueError(f"unknown closure type {kind!r} (known: MLPClosure, ReferenceClosure, ConstantClosure)")
+    if kind == "ScaledClosure":
+        return ScaledClosure(closure_from_spec(spec["base"]), spec["factors"])
+    raise ValueError(f"unknown closure type {kind!r} (known: MLPClosure, ReferenceClosure, ConstantClosure, "
+                     "ScaledClosure)")
 
 
-def save_model(model_dir, closure, fluid: str, info: dict | None = None) -> Path:
-    """Write ``model_dir/model.json`` and ``model_dir/weights.pt``; returns the directory."""
+def save_model(model_dir, closure, fluid: str, info: dict | None = None, mechanisms=()) -> Path:
+    """Write ``model_dir/model.json`` and ``model_dir/weights.pt``; returns the directory.
+
+    ``mechanisms`` (``tankode.mechanisms``) are saved with their parameter values in the JSON:
+    a model extended by the diagnosis is simulated, trained and used for prediction with them.
+    """
     d = Path(model_dir)
     d.mkdir(parents=True, exist_ok=True)
-    meta = {"format": FORMAT, "fluid": fluid, "closure": closure_spec(closure), "info": info or {}}
+    meta = {"format": FORMAT, "fluid": fluid, "closure": closure_spec(closure),
+            "mechanisms": mechanisms_spec(mechanisms), "info": info or {}}
     torch.save({k: v.detach().clone() for k, v in closure.state_dict().items()}, d / "weights.pt")
     (d / "model.json").write_text(json.dumps(meta, indent=2) + "\n")
     return d
 
 
-def load_model(model_dir):
-    """Return ``(closure, meta)`` from a saved model directory, validating its format."""
+def load_model(model_dir) -> SavedModel:
+    """Return ``SavedModel(closure, mechanisms, meta)`` from a model directory, validating its format."""
     d = Path(model_dir)
     path = d / "model.json"
     if not path.exists():
@@ -71,7 +92,11 @@ def load_model(model_dir):
     closure = closure_from_spec(meta["closure"])
     weights = torch.load(d / "weights.pt", map_location="cpu", weights_only=True)
     closure.load_state_dict(weights)
-    return closure, meta
+    try:
+        mechanisms = tuple(mechanisms_from_spec(meta.get("mechanisms", [])))
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{path}: mechanisms: {err}") from None
+    return SavedModel(closure, mechanisms, meta)
 
 
-__all__ = ["save_model", "load_model", "closure_spec", "closure_from_spec"]
+__all__ = ["SavedModel", "save_model", "load_model", "closure_spec", "closure_from_spec"]

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .closures.base import Closure, ClosureInputs
+from .closures.scaled import ScaledClosure
 from .closures.reference import ReferenceClosure
 
 NAMES = ("h_vi", "h_li", "h_wv", "h_wl")
@@ -45,40 +45,6 @@ NAMES = ("h_vi", "h_li", "h_wv", "h_wl")
 # Output standard deviation below this fraction of |mean| (p_v ~ 1e5 Pa: ~1e-4 Pa) counts as
 # zero variance: the indices there are 0/0 and SALib would return noise (or NaN + warnings).
 REL_STD_FLOOR = 1e-9
-
-
-class ScaledClosure(Closure):
-    """A closure whose output is ``base(x) * factors``: one multiplier per environment and h.
-
-    ``simulate`` takes one closure for all environments of a batch; this wrapper gives each
-    environment its own multipliers, so that many perturbed samples run as one batched ODE.
-
-    Args:
-        base: the closure to scale (e.g. ``ReferenceClosure()``), returning ``(env, 4)``.
-        factors: multipliers, shape ``(env, 4)`` (dimensionless, order h_vi, h_li, h_wv, h_wl);
-            must be finite and >= 0. Stored as a float64 buffer (not trained).
-
-    Raises:
-        ValueError: ``factors`` has the wrong shape or non-finite / negative entries, or (in
-            ``forward``) the number of environments differs from ``factors.shape[0]``.
-    """
-
-    def __init__(self, base: Closure, factors):
-        super().__init__()
-        f = torch.as_tensor(factors, dtype=torch.float64)
-        if f.ndim != 2 or f.shape[1] != 4:
-            raise ValueError(f"factors must have shape (env, 4), got {tuple(f.shape)}")
-        if not torch.isfinite(f).all() or (f < 0).any():
-            raise ValueError("factors must be finite and >= 0")
-        self.base = base
-        self.register_buffer("factors", f)
-
-    def forward(self, x: ClosureInputs) -> Tensor:
-        theta = self.base(x)
-        if theta.shape != self.factors.shape:
-            raise ValueError(f"ScaledClosure: base closure returned theta of shape {tuple(theta.shape)}, "
-                             f"but factors have shape {tuple(self.factors.shape)} (one row per environment)")
-        return theta * self.factors
 
 
 @dataclasses.dataclass(frozen=True)

@@ -68,6 +68,7 @@ def simulate(
     t_eval=None,
     solver: AdaptiveRK | LSODA = LSODA(),
     check_domain: bool = True,
+    mechanisms=(),
 ) -> Solution:
     """Simulate runs (their initial state and inputs) with a closure; the forward model.
 
@@ -81,6 +82,8 @@ def simulate(
         solver: the ODE solver strategy; LSODA (stiff-capable) by default.
         check_domain: raise if the trajectory leaves the surrogate's fitted domain
             (results there would be extrapolation).
+        mechanisms: extra physical effects (``tankode.mechanisms``) with their values; the
+            observations then include their sensor effects (e.g. a pressure bias).
 
     Returns:
         A ``Solution``.
@@ -91,8 +94,8 @@ def simulate(
     """
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
     closure = ReferenceClosure() if closure is None else closure
-    model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K)
-    s0 = fleet.initial_state()
+    model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K, mechanisms)
+    s0 = fleet.initial_state(model.mechanisms)
     t_out = output_times(fleet, output_dt_s, t_eval)
     start = time.perf_counter()
     states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out, state_scale(s0, fleet.geometry.volume_m3),

@@ -52,7 +52,7 @@ def test_scaled_closure_multiplies_exactly():
     assert torch.equal(theta, base(x) * factors)
     with pytest.raises(ValueError, match="one row per environment"):
         closure(type("X", (), {"T_v_K": torch.zeros(3, dtype=torch.float64)})())
-    with pytest.raises(ValueError, match=r"shape \(env, 4\)"):
+    with pytest.raises(ValueError, match=r"shape \(4,\) or \(env, 4\)"):
         ScaledClosure(base, torch.ones(3))
     with pytest.raises(ValueError, match=">= 0"):
         ScaledClosure(base, -torch.ones(1, 4))

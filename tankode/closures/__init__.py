@@ -2,6 +2,7 @@
 
 from .base import THETA_NAMES, Closure, ClosureInputs, ConstantClosure
 from .mlp import FEATURE_NAMES, MLPClosure, MLPConfig, mlp_features
+from .scaled import ScaledClosure
 from .reference import ReferenceClosure, ReferenceCorrelation, first_slosh_frequency_Hz, wave_height_m
 
 __all__ = [
@@ -14,6 +15,7 @@ __all__ = [
     "mlp_features",
     "ReferenceClosure",
     "ReferenceCorrelation",
+    "ScaledClosure",
     "THETA_NAMES",
     "first_slosh_frequency_Hz",
     "wave_height_m",

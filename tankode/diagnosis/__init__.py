@@ -1,0 +1,20 @@
+"""Diagnosis: show what the simulation gets wrong, name the missing mechanism, measure the gain.
+
+``diagnose(runs) -> Diagnosis`` runs every step; ``write_report(diagnosis, out_dir)`` writes
+``report.json``, ``report.md``, the figures and the extended model. The steps are public for
+notebooks: ``calibrate``, ``residual_report``, ``score_tests``, ``bootstrap_gain``.
+"""
+
+from .data import HoldOutTail, LeaveOneRunOut, Observed
+from .diagnose import Candidate, Diagnosis, DiagnosisConfig, Thresholds, calibrate, diagnose
+from .evidence import bootstrap_gain, information_criteria, score_tests
+from .fit import Fit, fit
+from .forward import Problem
+from .report import write_report
+from .residuals import ljung_box, residual_report
+
+__all__ = [
+    "Candidate", "Diagnosis", "DiagnosisConfig", "Fit", "HoldOutTail", "LeaveOneRunOut", "Observed", "Problem",
+    "Thresholds", "bootstrap_gain", "calibrate", "diagnose", "fit", "information_criteria", "ljung_box",
+    "residual_report", "score_tests", "write_report",
+]

@@ -1,0 +1,337 @@
+"""Diagnosis: what the simulation gets wrong, which missing mechanism explains it, and the gain.
+
+Steps (each a function, so a notebook can run them one at a time; ``diagnose`` runs them all):
+
+1. ``calibrate``: the baseline closure (four multipliers on the base closure's coefficients)
+   is fitted to the calibration part of the data; the rest is held out (``HoldOutTail``: the
+   last 30 % of each run, or ``LeaveOneRunOut``).
+2. ``residual_report``: bias, RMS, whiteness and 3-sigma spans per channel and phase.
+3. ``score_tests``: every candidate mechanism is ranked by Rao's score test at 0.
+4. ``refit``: the leading candidates are fitted jointly with the closure; the evidence is the
+   likelihood ratio, dBIC and dAIC on the calibration data, the held-out loss gain with a
+   block-bootstrap interval, and the parameter estimate with its standard error.
+5. A cause is named only if it clears every threshold of ``Thresholds``; the extended model
+   (closure + mechanism refitted on all data) is returned for saving.
+
+The closure must not silently absorb a mechanism. Three guards: (a) the calibrated closure has
+only four constant multipliers on physically shaped correlations (a factor 10 at most either
+way), so it cannot bend in time to mimic a leak or a bias; (b) the score test projects the
+closure's own directions out of each mechanism's sensitivity, so only what the closure cannot
+explain counts; (c) the decision requires a held-out gain: a mechanism that merely trades off
+against the closure on the calibration data does not predict the held-out part better.
+
+Limits: mechanisms are tested one at a time (one cause); parameters are shared by all runs
+(one tank); the information criteria assume white noise (the held-out test does not).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .._threads import single_threaded
+from ..fleet import Fleet
+from ..mechanisms import MECHANISMS
+from .data import CHANNELS, HoldOutTail, LeaveOneRunOut, Observed
+from .evidence import Score, bootstrap_gain, information_criteria, score_tests
+from .fit import Fit, fit
+from .forward import Problem, closure_params, mechanism_params
+from .residuals import heldout_terms, loss_from_terms, residual_report
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """What a candidate must clear to be named the cause.
+
+    Attributes:
+        delta_bic: dBIC at most this (-10: "very strong" evidence on Kass & Raftery's scale).
+        heldout_gain: relative held-out loss reduction at least this (5 %: below it the
+            extension is not worth a parameter to an engineer)...
+        gain_ci_low: ...with the lower end of its bootstrap interval above this (0: the gain
+            is not an accident of which held-out blocks were seen).
+        z_score: estimate / standard error at least this (3: the parameter is resolved).
+    """
+
+    delta_bic: float = -10.0
+    heldout_gain: float = 0.05
+    gain_ci_low: float = 0.0
+    z_score: float = 3.0
+
+
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """How the diagnosis runs.
+
+    Attributes:
+        candidates: mechanism ids to consider (all of ``tankode.mechanisms`` by default).
+        split: ``HoldOutTail()`` (default for one run) or ``LeaveOneRunOut()``; None picks
+            leave-one-run-out for several runs and the tail for one.
+        refit_top: how many score-ranked candidates to refit (None = all: each refit costs
+            ~10 simulations, a few seconds for an hour of data).
+        max_iterations: Levenberg-Marquardt iterations per fit.
+        block_s: bootstrap block length (s) over the held-out span.
+        n_boot: bootstrap resamples.
+        thresholds: the decision rule.
+        seed: bootstrap seed.
+    """
+
+    candidates: tuple[str, ...] = tuple(MECHANISMS)
+    split: HoldOutTail | LeaveOneRunOut | None = None
+    refit_top: int | None = None
+    max_iterations: int = 15
+    block_s: float = 120.0
+    n_boot: int = 2000
+    thresholds: Thresholds = Thresholds()
+    seed: int = 0
+
+    def __post_init__(self):
+        unknown = set(self.candidates) - set(MECHANISMS)
+        if unknown:
+            raise ValueError(f"unknown candidate mechanism(s) {sorted(unknown)}; known: {', '.join(MECHANISMS)}")
+        if self.refit_top is not None and self.refit_top < 1:
+            raise ValueError(f"refit_top must be >= 1 or None, got {self.refit_top}")
+        if not self.block_s > 0:
+            raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
+
+
+@dataclass
+class Candidate:
+    """The evidence for one mechanism (see ``Thresholds`` for how it is judged)."""
+
+    mechanism: str
+    score: float
+    score_rank: int
+    refit: bool = False
+    params: dict = field(default_factory=dict)
+    params_std: dict = field(default_factory=dict)
+    z_score: float = float("nan")
+    likelihood_ratio: float = float("nan")
+    delta_bic: float = float("nan")
+    delta_aic: float = float("nan")
+    heldout_gain: float = float("nan")
+    heldout_gain_ci: tuple = (float("nan"), float("nan"))
+    heldout_loss: float = float("nan")
+    heldout_loss_by_channel: dict = field(default_factory=dict)
+    passes: bool = False
+    reasons: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["heldout_gain_ci"] = list(self.heldout_gain_ci)
+        return d
+
+
+@dataclass
+class Diagnosis:
+    """Everything the diagnosis found; ``tankode.diagnosis.report`` writes it out."""
+
+    cause: str | None
+    ranking: list[Candidate]
+    baseline: dict
+    extended: dict | None
+    split: str
+    runs: tuple[str, ...]
+    unexplained: list
+    wall_time_s: float
+    n_simulations: int
+    thresholds: Thresholds
+    # for figures and saving (not in report.json)
+    problem: Problem = None
+    baseline_fit: Fit = None
+    extended_fit: Fit | None = None
+    heldout: np.ndarray = None
+    baseline_pred: np.ndarray = None
+    extended_pred: np.ndarray | None = None
+
+    def to_json(self) -> dict:
+        return {
+            "cause": self.cause, "ranking": [c.to_json() for c in self.ranking], "baseline": self.baseline,
+            "extended": self.extended, "split": self.split, "runs": list(self.runs), "unexplained": self.unexplained,
+            "wall_time_s": self.wall_time_s, "n_simulations": self.n_simulations,
+            "thresholds": asdict(self.thresholds),
+        }
+
+    def extended_model(self):
+        """``(closure, mechanisms)`` of the extended model (the baseline's if no cause was named)."""
+        f = self.extended_fit if self.extended_fit is not None else self.baseline_fit
+        return self.problem.build(f.params, f.values)
+
+
+# -- the steps -----------------------------------------------------------------------------------
+
+
+def _split(config: DiagnosisConfig, fleet: Fleet):
+    if config.split is not None:
+        return config.split
+    return LeaveOneRunOut() if fleet.n_env > 1 else HoldOutTail()
+
+
+class _Folds:
+    """Fits on the evidence data and on each fold, and held-out predictions assembled from the folds."""
+
+    def __init__(self, problem: Problem, split, config: DiagnosisConfig):
+        self.problem = problem
+        self.config = config
+        self.folds = split.folds(problem.fleet, problem.obs)
+        self.heldout = np.zeros_like(self.folds[0][1])
+        for _, h in self.folds:
+            self.heldout |= h
+        # One fold (a held-out tail): the evidence is the fold's calibration part. Several
+        # folds: the evidence uses all data, the held-out test the folds.
+        self.evidence_mask = self.folds[0][0] if len(self.folds) == 1 else np.ones_like(self.heldout)
+
+    def run(self, params, x0) -> tuple[Fit, np.ndarray]:
+        """(evidence fit, held-out predictions ``(env, T, 5)``)."""
+        it = self.config.max_iterations
+        fold_fits = [fit(self.problem, params, x0, train, it) for train, _ in self.folds]
+        evidence = fold_fits[0] if len(self.folds) == 1 else fit(self.problem, params, x0, self.evidence_mask, it)
+        held_pred = np.zeros_like(evidence.pred)
+        for f, (_, h) in zip(fold_fits, self.folds):
+            held_pred[h] = f.pred[h]
+        return evidence, held_pred
+
+
+def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConfig = DiagnosisConfig()):
+    """Calibrate the baseline; returns ``(problem, folds, baseline_fit, heldout_pred)`` for the next steps."""
+    fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs)
+    problem = Problem(fleet, base_closure, tuple(fixed_mechanisms))
+    folds = _Folds(problem, _split(config, fleet), config)
+    base, held = folds.run(closure_params(), np.zeros(4))
+    return problem, folds, base, held
+
+
+def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConfig = DiagnosisConfig(),
+             progress=None) -> Diagnosis:
+    """Run the whole diagnosis on measured runs (see the module docstring).
+
+    Args:
+        runs: ``Run`` objects of one tank (one or several tests).
+        base_closure: the closure to calibrate (reference correlations by default, or a
+            saved model's closure).
+        fixed_mechanisms: mechanisms already in the model (a saved model's), kept fixed.
+        config: ``DiagnosisConfig``.
+        progress: optional callable receiving one line per step.
+
+    Returns:
+        A ``Diagnosis``.
+    """
+    say = progress or (lambda line: None)
+    start = time.perf_counter()
+    with single_threaded():
+        problem, folds, base, base_held = calibrate(runs, base_closure, fixed_mechanisms, config)
+        obs = problem.obs
+        candidates = [c for c in config.candidates if c not in {m.id for m in problem.fixed}]
+        say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
+        base_terms = heldout_terms(obs, base_held, folds.heldout, config.block_s)
+        base_loss, base_by = loss_from_terms(*base_terms)
+        scores = sorted(score_tests(problem, base, candidates, folds.evidence_mask), key=lambda s: -s.statistic)
+        say("score test: " + ", ".join(f"{s.mechanism} {s.statistic:.3g}" for s in scores))
+        ranking = [Candidate(s.mechanism, s.statistic, i + 1) for i, s in enumerate(scores)]
+        n_refit = len(scores) if config.refit_top is None else min(config.refit_top, len(scores))
+        fits: dict[str, tuple[Fit, np.ndarray]] = {}
+        for cand, sc in zip(ranking[:n_refit], scores[:n_refit]):
+            if sc.statistic <= 0:
+                # The data pull its parameter out of its physical bounds (e.g. a negative leak):
+                # at the bound it is the baseline, nothing to refit.
+                cand.reasons = ["the data pull its parameter outside its physical bounds (score 0)"]
+                continue
+            _refit(cand, sc, problem, folds, base, base_terms, config, fits)
+            say(f"refit {cand.mechanism}: dBIC {cand.delta_bic:.1f}, held-out gain {cand.heldout_gain:.3f} "
+                f"[{cand.heldout_gain_ci[0]:.3f}, {cand.heldout_gain_ci[1]:.3f}], passes {cand.passes}")
+        ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
+        cause = ranking[0].mechanism if ranking and ranking[0].passes else None
+
+        extended_fit = None
+        extended = None
+        if cause is not None:
+            ext, _ = fits[cause]
+            all_data = np.ones_like(folds.heldout)
+            extended_fit = fit(problem, ext.params, ext.values, all_data, config.max_iterations)
+            c = ranking[0]
+            extended = {
+                "mechanism": cause,
+                "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
+                "closure_factors": _factors(extended_fit),
+                "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
+                "residuals": residual_report(obs, fits[cause][1] * folds.heldout[..., None]
+                                             + extended_fit.pred * ~folds.heldout[..., None], folds.heldout),
+                "fitted_on": "all data (calibration and held-out) for the saved model; held-out figures from "
+                             "the calibration-only fit",
+            }
+        baseline = {
+            "closure_factors": _factors(base), "chi2": base.chi2, "n_observations": base.n_data,
+            "heldout_loss": base_loss, "heldout_loss_by_channel": dict(zip(CHANNELS, base_by.tolist())),
+            "residuals": residual_report(obs, base_held * folds.heldout[..., None] + base.pred * ~folds.heldout[..., None],
+                                         folds.heldout),
+            "fit_status": base.status,
+        }
+        unexplained = _unexplained(obs, extended_fit.pred if extended_fit is not None else base.pred, folds.heldout)
+    return Diagnosis(
+        cause, ranking, baseline, extended, folds_description(config, problem.fleet), obs.run_names, unexplained,
+        time.perf_counter() - start, problem.n_simulations, config.thresholds, problem, base, extended_fit,
+        folds.heldout, base_held * folds.heldout[..., None] + base.pred * ~folds.heldout[..., None],
+        None if extended_fit is None else fits[cause][1] * folds.heldout[..., None]
+        + extended_fit.pred * ~folds.heldout[..., None],
+    )
+
+
+def folds_description(config: DiagnosisConfig, fleet: Fleet) -> str:
+    return _split(config, fleet).describe()
+
+
+def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, config, fits) -> None:
+    params = list(base.params) + mechanism_params(cand.mechanism)
+    x0 = np.concatenate([base.values, [sc.one_step[p.name] for p in mechanism_params(cand.mechanism)]])
+    ext, held = folds.run(params, x0)
+    fits[cand.mechanism] = (ext, held)
+    ic = information_criteria(base, ext)
+    terms = heldout_terms(problem.obs, held, folds.heldout, config.block_s)
+    gain, ci = bootstrap_gain(base_terms, terms, config.n_boot, config.seed)
+    loss, by = loss_from_terms(*terms)
+    vals, stds = _mech_values(ext, cand.mechanism), _mech_values(ext, cand.mechanism, std=True)
+    z = min(abs(v) / s if s > 0 else np.inf for v, s in zip(vals.values(), stds.values()))
+    cand.refit = True
+    cand.params, cand.params_std, cand.z_score = vals, stds, float(z)
+    cand.likelihood_ratio, cand.delta_bic, cand.delta_aic = ic["likelihood_ratio"], ic["delta_bic"], ic["delta_aic"]
+    cand.heldout_gain, cand.heldout_gain_ci = gain, ci
+    cand.heldout_loss, cand.heldout_loss_by_channel = loss, dict(zip(CHANNELS, by.tolist()))
+    th = config.thresholds
+    reasons = []
+    if not cand.delta_bic <= th.delta_bic:
+        reasons.append(f"dBIC {cand.delta_bic:.1f} > {th.delta_bic}")
+    if not gain >= th.heldout_gain:
+        reasons.append(f"held-out gain {gain:.3f} < {th.heldout_gain}")
+    if not ci[0] > th.gain_ci_low:
+        reasons.append(f"gain interval low end {ci[0]:.3f} <= {th.gain_ci_low}")
+    if not cand.z_score >= th.z_score:
+        reasons.append(f"estimate/std {cand.z_score:.2f} < {th.z_score}")
+    cand.reasons = reasons
+    cand.passes = not reasons
+
+
+def _mech_values(f: Fit, mid: str, std: bool = False) -> dict:
+    src = f.std if std else f.values
+    return {p.name: float(v) for p, v in zip(f.params, src) if p.owner == mid}
+
+
+def _factors(f: Fit) -> dict:
+    return {p.name[3:]: float(np.exp(v)) for p, v in zip(f.params, f.values) if p.owner == "closure"}
+
+
+def _unexplained(obs: Observed, pred: np.ndarray, heldout: np.ndarray) -> list:
+    """Channels whose held-out residuals stay beyond the noise: RMS > 1.5 sigma or |bias| > 1 sigma."""
+    z = (pred - obs.y) / obs.sigma[:, None, :]
+    out = []
+    for e, name in enumerate(obs.run_names):
+        for c, ch in enumerate(CHANNELS):
+            v = z[e, heldout[e], c]
+            v = v[np.isfinite(v)]
+            if len(v) and (np.sqrt((v**2).mean()) > 1.5 or abs(v.mean()) > 1.0):
+                out.append({"run": name, "channel": ch, "rms_sigma": float(np.sqrt((v**2).mean())),
+                            "bias_sigma": float(v.mean())})
+    return out
+
+
+__all__ = ["diagnose", "calibrate", "Diagnosis", "DiagnosisConfig", "Thresholds", "Candidate"]

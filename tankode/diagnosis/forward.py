@@ -1,0 +1,143 @@
+"""The calibration problem: predictions as a function of a few bounded physical parameters."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .._threads import single_threaded
+from ..closures import ReferenceClosure, ScaledClosure
+from ..fleet import Fleet
+from ..geometry import stack_geometries
+from ..mechanisms import MECHANISMS, Mechanism, make_mechanism
+from ..simulate import simulate
+from ..solver import LSODA
+from .data import Observed
+
+THETA = ("h_vi", "h_li", "h_wv", "h_wl")
+
+# A closure multiplier may move a coefficient by a factor of 10 either way: enough to absorb a
+# wrong correlation constant, too little to mimic a mechanism by an unphysical coefficient.
+LOG_FACTOR_BOUND = math.log(10.0)
+# Normalised unit of a log-multiplier (the fit variable is ln(f) / 0.1): a 10 % change.
+LOG_FACTOR_SCALE = 0.1
+
+
+@dataclass(frozen=True)
+class FreeParam:
+    """One fitted parameter: a closure multiplier (``owner="closure"``) or a mechanism's.
+
+    The fit works on ``z = value / scale`` within ``[lower, upper] / scale``; for closure
+    multipliers ``value`` is ln(factor).
+    """
+
+    owner: str
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    scale: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.owner}.{self.name}"
+
+
+def closure_params() -> list[FreeParam]:
+    """The four log-multipliers of the closure's coefficients."""
+    return [FreeParam("closure", f"ln_{n}_factor", "1", -LOG_FACTOR_BOUND, LOG_FACTOR_BOUND, LOG_FACTOR_SCALE)
+            for n in THETA]
+
+
+def mechanism_params(mechanism_id: str) -> list[FreeParam]:
+    """The parameters of one candidate mechanism."""
+    cls = MECHANISMS[mechanism_id]
+    return [FreeParam(mechanism_id, p.name, p.unit, p.lower, p.upper, p.scale) for p in cls.params]
+
+
+class Problem:
+    """Predicted observations of a fleet for values of closure multipliers and mechanism parameters.
+
+    Args:
+        fleet: the runs (``Fleet``), built once.
+        base_closure: the closure whose output the four multipliers scale (the reference
+            correlations by default, or a saved model's closure).
+        fixed_mechanisms: mechanisms already in the model (from a saved model), kept as they are.
+        solver: the forward solver; LSODA with tight tolerances so that finite differences of
+            the predictions are accurate (its error, ~1e-8 relative, is far below the noise).
+    """
+
+    def __init__(self, fleet: Fleet, base_closure=None, fixed_mechanisms: tuple[Mechanism, ...] = (),
+                 solver: LSODA = LSODA(rtol=1e-8, atol=1e-10)):
+        self.fleet = fleet
+        self.base = ReferenceClosure() if base_closure is None else base_closure
+        self.fixed = tuple(fixed_mechanisms)
+        self.solver = solver
+        self.obs = Observed.from_fleet(fleet)
+        self.t_eval = np.concatenate([[fleet.t0_s], self.obs.t_s])
+        self.n_simulations = 0
+        self._fleets = {1: fleet}
+
+    def build(self, params: list[FreeParam], values: np.ndarray) -> tuple[ScaledClosure, tuple[Mechanism, ...]]:
+        """The closure and the mechanisms for parameter ``values``.
+
+        ``values`` in physical units is ``(n,)`` (one model for the fleet) or ``(B, n)``: B
+        variants, each repeated for the fleet's environments (environment ``b * n_env + e``).
+        """
+        values = np.asarray(values, float)
+        batch = values.ndim == 2
+        V = np.atleast_2d(values)  # (B, n)
+        rows = np.repeat(V, self.fleet.n_env, axis=0) if batch else V  # (B * env, n) or (1, n)
+        log_f = np.zeros((len(rows), 4))
+        mech: dict[str, dict[str, np.ndarray]] = {}
+        for j, p in enumerate(params):
+            if p.owner == "closure":
+                log_f[:, THETA.index(p.name[3:-7])] = rows[:, j]
+            else:
+                mech.setdefault(p.owner, {})[p.name] = rows[:, j]
+        factors = torch.as_tensor(np.exp(log_f if batch else log_f[0]))
+        built = []
+        for mid, vals in mech.items():
+            m = make_mechanism(mid)
+            cols = np.stack([vals.get(q.name, np.zeros(len(rows))) for q in m.params], axis=-1)  # (rows, n_params)
+            m.set_values(cols if batch else cols[0])
+            built.append(m)
+        return ScaledClosure(self.base, factors), self.fixed + tuple(built)
+
+    def _fleet(self, copies: int) -> Fleet:
+        if copies not in self._fleets:
+            self._fleets[copies] = Fleet(self.fleet.runs * copies,
+                                         stack_geometries(list(self.fleet.geometry.unbind()) * copies),
+                                         self.fleet.walls * copies, self.fleet.fluid, self.fleet.reference)
+        return self._fleets[copies]
+
+    def predict(self, params: list[FreeParam], values: np.ndarray) -> np.ndarray:
+        """Predicted observations at ``self.obs.t_s``: ``(env, T, 5)``, or ``(B, env, T, 5)`` for ``(B, n)`` values.
+
+        The B variants are integrated as one batched ODE (as cheap as one: the solver's work is
+        set by the dynamics, not the batch), on one step sequence, so finite differences
+        between them carry no solver noise from differing steps.
+
+        Raises:
+            SimulationError: the solver failed or the state left the property domain.
+        """
+        values = np.asarray(values, float)
+        closure, mechanisms = self.build(params, values)
+        fleet = self._fleet(len(values) if values.ndim == 2 else 1)
+        with single_threaded():  # small tensors: extra threads only contend (20x slower on a busy machine)
+            sol = simulate(fleet, closure, t_eval=self.t_eval, solver=self.solver, mechanisms=mechanisms)
+        self.n_simulations += 1
+        out = sol.observations[:, 1:].numpy()  # (B * env, T, 5)
+        if values.ndim == 2:
+            return out.reshape(len(values), self.fleet.n_env, *out.shape[1:])
+        return out
+
+    def normalised_residuals(self, pred: np.ndarray) -> np.ndarray:
+        """``(pred - y) / sigma``, ``(..., env, T, 5)``, NaN where nothing was measured."""
+        return (pred - self.obs.y) / self.obs.sigma[:, None, :]
+
+
+__all__ = ["Problem", "FreeParam", "closure_params", "mechanism_params", "THETA"]

@@ -1,0 +1,197 @@
+"""Write a diagnosis out: ``report.json``, ``report.md`` (tables + figures), figures and ``model/``."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..saved import save_model  # noqa: E402
+from .data import CHANNELS  # noqa: E402
+from .diagnose import Diagnosis  # noqa: E402
+
+_UNITS = {"p_v_Pa": ("p_v", "bar", 1e-5), "T_v_K": ("T_v", "K", 1.0), "T_l_K": ("T_l", "K", 1.0),
+          "T_w_K": ("T_w", "K", 1.0), "H_l_m": ("H_l", "mm", 1e3)}
+
+
+def _finite(x):
+    """JSON-safe: NaN and inf become None."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, (np.floating, np.integer)):
+        return _finite(x.item())
+    return x
+
+
+def write_report(d: Diagnosis, out_dir, fluid: str) -> dict:
+    """Write every output of the diagnosis into ``out_dir``; returns the paths written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"json": out / "report.json", "md": out / "report.md", "model": out / "model"}
+    figs = []
+    for e, name in enumerate(d.runs):
+        p = out / f"prediction_{name}.png"
+        _plot_prediction(d, e, p)
+        r = out / f"residuals_{name}.png"
+        _plot_residuals(d, e, r)
+        figs += [p, r]
+    g = out / "heldout_loss.png"
+    _plot_heldout(d, g)
+    figs.append(g)
+    paths["figures"] = figs
+    closure, mechanisms = d.extended_model()
+    save_model(paths["model"], closure, fluid, {
+        "diagnosis": {"cause": d.cause, "runs": list(d.runs), "split": d.split},
+        "note": "closure = the base closure times the calibrated factors; mechanisms with their fitted values",
+    }, mechanisms=mechanisms)
+    paths["json"].write_text(json.dumps(_finite(d.to_json()), indent=2) + "\n")
+    paths["md"].write_text(markdown(d, [f.name for f in figs]))
+    return paths
+
+
+def markdown(d: Diagnosis, figures: list[str]) -> str:
+    """The engineer's report: verdict, evidence table, what the baseline gets wrong, figures."""
+    L = ["# tankode diagnosis", ""]
+    L.append(f"Runs: {', '.join(d.runs)}. Validation: {d.split}. {d.n_simulations} simulations, "
+             f"{d.wall_time_s:.0f} s.")
+    L.append("")
+    if d.cause:
+        c = d.ranking[0]
+        ps = ", ".join(f"{k} = {v:.4g} +- {c.params_std[k]:.2g}" for k, v in d.extended["params"].items())
+        L.append(f"**Cause: `{d.cause}`** ({ps}, fitted on all data). It lowers the held-out loss by "
+                 f"{100 * c.heldout_gain:.0f} % (95 % interval {100 * c.heldout_gain_ci[0]:.0f} to "
+                 f"{100 * c.heldout_gain_ci[1]:.0f} %), dBIC {c.delta_bic:.1f}.")
+    else:
+        L.append("**No candidate mechanism explains the misfit** with the required evidence.")
+        if d.unexplained:
+            L.append("Channels still beyond the noise on held-out data: " + ", ".join(
+                f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"
+                for u in d.unexplained) + ".")
+        else:
+            L.append("The calibrated baseline predicts the held-out data within the noise.")
+    th = d.thresholds
+    L += ["", f"Decision rule: dBIC <= {th.delta_bic}, held-out gain >= {th.heldout_gain} with the lower end of its "
+          f"95 % block-bootstrap interval > {th.gain_ci_low}, and estimate / standard error >= {th.z_score}.", ""]
+    L += ["## Candidates", "",
+          "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | verdict |",
+          "|---|---|---|---|---|---|---|---|"]
+    for i, c in enumerate(d.ranking, 1):
+        est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
+        verdict = "cause" if c.passes and c.mechanism == d.cause else ("passes" if c.passes else "; ".join(c.reasons)
+                                                                        or "not refitted")
+        gain = (f"{c.heldout_gain:.3f} [{c.heldout_gain_ci[0]:.3f}, {c.heldout_gain_ci[1]:.3f}]"
+                if c.refit else "")
+        L.append(f"| {i} | `{c.mechanism}` | {est} | {c.score:.3g} | {c.delta_bic:.1f} | {c.likelihood_ratio:.1f} | "
+                 f"{gain} | {verdict} |")
+    L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", "",
+          "| channel | baseline | extended |", "|---|---|---|"]
+    ext = d.extended["heldout_loss_by_channel"] if d.extended else {}
+    for ch in CHANNELS:
+        b = d.baseline["heldout_loss_by_channel"][ch]
+        if b == 0 and not ext.get(ch):
+            continue
+        L.append(f"| {ch} | {b:.3g} | {ext[ch]:.3g} |" if ch in ext else f"| {ch} | {b:.3g} | |")
+    L += ["", "## What the calibrated baseline gets wrong", "",
+          "Closure factors: " + ", ".join(f"{k} x{v:.3g}" for k, v in d.baseline["closure_factors"].items()) + ".", ""]
+    for run, chans in d.baseline["residuals"]["runs"].items():
+        L += [f"### {run}", "", "| channel | calibration bias / RMS [sigma] | held-out bias / RMS [sigma] | "
+              "Ljung-Box p | worst phase (RMS) | spans outside 3 sigma |", "|---|---|---|---|---|---|"]
+        for ch, s in chans.items():
+            cal, held = s["calibration"], s["heldout"]
+            fmt = lambda x: f"{x['bias_sigma']:+.2f} / {x['rms_sigma']:.2f}" if x else "-"  # noqa: E731
+            worst = max(s["phases"].items(), key=lambda kv: kv[1]["rms_sigma"]) if s["phases"] else None
+            spans = "; ".join(f"{sp['t_start_s']:.0f}-{sp['t_end_s']:.0f} s ({sp['sign']}, {sp['max_abs_sigma']:.1f})"
+                              for sp in s["spans_outside_3sigma"][:4]) or "none"
+            worst_txt = f"{worst[0]} ({worst[1]['rms_sigma']:.2f})" if worst else "-"
+            L.append(f"| {ch} | {fmt(cal)} | {fmt(held)} | {s['ljung_box_p']:.2g} | {worst_txt} | {spans} |")
+        L.append("")
+    L += ["## Figures", ""] + [f"![{f}]({f})" for f in figures]
+    L += ["", "The extended model is in `model/` (use it with `tankode simulate|assimilate|predict`)."]
+    return "\n".join(L) + "\n"
+
+
+def _plot_prediction(d: Diagnosis, e: int, path) -> None:
+    obs = d.problem.obs
+    chans = [c for c in range(5) if np.isfinite(obs.y[e, :, c]).any()]
+    fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.2 * len(chans)), sharex=True, squeeze=False)
+    t = obs.t_s / 60.0
+    held = d.heldout[e]
+    for ax, c in zip(axes[:, 0], chans):
+        label, unit, k = _UNITS[CHANNELS[c]]
+        y, s = obs.y[e, :, c] * k, obs.sigma[e, c] * k
+        ok = np.isfinite(y)
+        ax.plot(t[ok], y[ok], ".", ms=2, color="0.5", label="data")
+        ax.fill_between(t, d.baseline_pred[e, :, c] * k - s, d.baseline_pred[e, :, c] * k + s, color="tab:red",
+                        alpha=0.15, lw=0)
+        ax.plot(t, d.baseline_pred[e, :, c] * k, color="tab:red", lw=1.2, label="baseline +- 1 sigma")
+        if d.extended_pred is not None:
+            ax.plot(t, d.extended_pred[e, :, c] * k, color="tab:blue", lw=1.2, label=f"with {d.cause}")
+        if held.any():
+            ax.axvspan(t[held][0], t[held][-1], color="0.9", zorder=0, label="held out")
+        ax.set_ylabel(f"{label} [{unit}]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    axes[-1, 0].set_xlabel("time [min]")
+    fig.suptitle(f"{d.runs[e]}: prediction and data (held-out span shaded)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_residuals(d: Diagnosis, e: int, path) -> None:
+    obs = d.problem.obs
+    chans = [c for c in range(5) if np.isfinite(obs.y[e, :, c]).any()]
+    fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.9 * len(chans)), sharex=True, squeeze=False)
+    t = obs.t_s / 60.0
+    for ax, c in zip(axes[:, 0], chans):
+        for pred, color, name in ((d.baseline_pred, "tab:red", "baseline"), (d.extended_pred, "tab:blue", d.cause)):
+            if pred is None:
+                continue
+            z = (pred[e, :, c] - obs.y[e, :, c]) / obs.sigma[e, c]
+            ok = np.isfinite(z)
+            ax.plot(t[ok], z[ok], ".", ms=2, color=color, label=name)
+        ax.axhspan(-3, 3, color="0.92", zorder=0)
+        ax.axhline(0, color="k", lw=0.6)
+        if d.heldout[e].any():
+            ax.axvline(t[d.heldout[e]][0], color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"{_UNITS[CHANNELS[c]][0]} residual [sigma]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    axes[-1, 0].set_xlabel("time [min] (dashed: start of the held-out span; band: +-3 sigma)")
+    fig.suptitle(f"{d.runs[e]}: residuals (prediction - data) in noise sigmas")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_heldout(d: Diagnosis, path) -> None:
+    base = d.baseline["heldout_loss_by_channel"]
+    ext = d.extended["heldout_loss_by_channel"] if d.extended else None
+    chans = [c for c in CHANNELS if base[c] > 0]
+    x = np.arange(len(chans))
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.bar(x - 0.2, [base[c] for c in chans], 0.4, color="tab:red", label="baseline")
+    if ext:
+        ax.bar(x + 0.2, [ext[c] for c in chans], 0.4, color="tab:blue", label=f"with {d.cause}")
+    ax.axhline(0.5, color="k", ls="--", lw=0.8, label="noise floor (0.5)")
+    ax.set_xticks(x, [_UNITS[c][0] for c in chans])
+    ax.set_ylabel("held-out loss (half mean squared residual / sigma^2)")
+    ax.set_yscale("log")
+    ax.legend(fontsize=8)
+    ax.set_title("held-out loss per channel")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+__all__ = ["write_report", "markdown"]

@@ -1,0 +1,144 @@
+"""The mechanism interface: a bounded physical effect, absent at 0, that plugs into the model.
+
+A mechanism is something the baseline model leaves out (a heat leak, an unmetered loss, a
+sensor bias, ...). Each has a few physical parameters with units and bounds; the value 0
+means "absent", so the baseline model is the extended model at 0 and adding a mechanism is a
+nested hypothesis (what the score test, the likelihood ratio and BIC of the diagnosis need).
+
+It acts through hooks of ``TankModel``, each a no-op by default:
+
+* ``adjust_forcing``: change the operations actually applied (unmetered leaks, meter bias);
+* ``heat_W``: extra heat into the vapour, the liquid and the wall (W);
+* ``interface_offset_K``: a liquid surface temperature above the bulk's at the interface;
+* ``wall_capacity_factor``: multiply m_w c_w;
+* ``pressure_offset_Pa``: what the pressure sensor reads beyond the hydrogen's own pressure
+  (a bias, an inert gas). The run's initial pressure is a sensor reading too, so the same
+  offset is removed from it when the initial state is built (``Fleet.initial_state``).
+
+Parameters are a float64 buffer ``value``: ``(n_params,)``, shared by every environment of a
+fleet (one tank observed in several runs), or ``(env, n_params)``, one row per environment (the
+diagnosis integrates the perturbed copies of a finite-difference Jacobian as one batched ODE).
+The diagnosis sets them by finite-difference Gauss-Newton; the assimilation keeps them fixed
+while it trains the closure. Hooks read a parameter with ``self.param(i, like)``, which shapes
+it to broadcast against a tensor ``like`` of shape ``(env,)`` or ``(env, time)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from ..forcing import Forcing
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of a mechanism.
+
+    Attributes:
+        name: identifier with its unit suffix (e.g. ``Q_W``).
+        unit: SI unit, for reports.
+        lower, upper: physical bounds (the box of the fit); 0 is inside or on the boundary.
+        scale: a typical magnitude, the unit of the normalised fit variable and of its
+            finite-difference step (the fit is scale-invariant otherwise).
+    """
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    scale: float
+
+    def __post_init__(self):
+        if not (self.lower <= 0.0 <= self.upper and self.scale > 0 and math.isfinite(self.scale)):
+            raise ValueError(f"parameter {self.name}: need lower <= 0 <= upper and scale > 0")
+
+
+class Mechanism(nn.Module):
+    """Base class of a candidate mechanism (see the module docstring for the hooks).
+
+    Subclasses set ``id``, ``params`` (a tuple of ``Param``) and ``signature`` (how it shows
+    in the data), and override the hooks they act through.
+
+    Args:
+        **values: parameter values by name (SI units); missing ones are 0 (absent).
+
+    Raises:
+        ValueError: an unknown parameter name, or a value outside its bounds.
+    """
+
+    id: ClassVar[str] = ""
+    params: ClassVar[tuple[Param, ...]] = ()
+    signature: ClassVar[str] = ""
+
+    def __init__(self, **values: float):
+        super().__init__()
+        unknown = set(values) - {p.name for p in self.params}
+        if unknown:
+            raise ValueError(f"mechanism {self.id!r} has no parameter(s) {sorted(unknown)}; "
+                             f"its parameters: {[p.name for p in self.params]}")
+        v = torch.tensor([float(values.get(p.name, 0.0)) for p in self.params], dtype=torch.float64)
+        self.register_buffer("value", v)
+        self.set_values(v)
+
+    # -- parameters ------------------------------------------------------------------------
+
+    def set_values(self, values) -> None:
+        """Set all parameters (SI units), ``(n_params,)`` or ``(env, n_params)``, checking their bounds."""
+        v = torch.as_tensor(values, dtype=torch.float64)
+        if v.ndim not in (1, 2) or v.shape[-1] != len(self.params):
+            raise ValueError(f"mechanism {self.id!r}: values must have shape ({len(self.params)},) or "
+                             f"(env, {len(self.params)}), got {tuple(v.shape)}")
+        for i, p in enumerate(self.params):
+            for x in v[..., i].reshape(-1).tolist():
+                if not (math.isfinite(x) and p.lower <= x <= p.upper):
+                    raise ValueError(f"mechanism {self.id!r}: {p.name} = {x:g} {p.unit} is outside its allowed "
+                                     f"range [{p.lower:g}, {p.upper:g}] {p.unit}")
+        self.value = v.clone()
+
+    def values_dict(self) -> dict[str, float]:
+        """Parameter values by name (SI units); for shared (1-D) values."""
+        if self.value.ndim != 1:
+            raise ValueError(f"mechanism {self.id!r} has per-environment values; no single value per parameter")
+        return {p.name: float(x) for p, x in zip(self.params, self.value)}
+
+    def param(self, i: int, like: Tensor | None = None) -> Tensor:
+        """Parameter ``i``: a 0-d tensor, or ``(env,)`` shaped to broadcast against ``like`` ``(env, ...)``."""
+        v = self.value[..., i]
+        if v.ndim == 1 and like is not None and like.ndim > 1:
+            v = v.reshape(-1, *([1] * (like.ndim - 1)))
+        return v
+
+    def extra_repr(self) -> str:
+        if self.value.ndim != 1:
+            return f"per-environment values of shape {tuple(self.value.shape)}"
+        return ", ".join(f"{k}={v:.4g}" for k, v in self.values_dict().items())
+
+    # -- hooks (no-ops) --------------------------------------------------------------------
+
+    def adjust_forcing(self, forcing: Forcing) -> Forcing:
+        """The operations actually applied, given the metered ones."""
+        return forcing
+
+    def heat_W(self, s: Tensor) -> tuple[Tensor | float, Tensor | float, Tensor | float]:
+        """Extra heat (W) into (vapour, liquid, wall) at state ``s`` ``(env, 7)``."""
+        return 0.0, 0.0, 0.0
+
+    def interface_offset_K(self) -> Tensor | float:
+        """How much warmer than the bulk liquid the liquid at the interface is (K)."""
+        return 0.0
+
+    def wall_capacity_factor(self) -> Tensor | float:
+        """Factor on the nominal m_w c_w."""
+        return 1.0
+
+    def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor) -> Tensor | float:
+        """Sensor pressure minus hydrogen pressure (Pa) for ullage temperature and volume ``(...)``."""
+        return 0.0
+
+
+__all__ = ["Mechanism", "Param"]
