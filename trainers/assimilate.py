@@ -180,15 +180,18 @@ class Assimilator:
         closure: the agent to train; a fresh ``MLPClosure`` (seeded) if None (e.g. pass the
             agent trained on other environments to continue from it).
         surrogate: property surrogate (cached default for the runs' fluid if None).
+        mechanisms: extra physical effects (``tankode.mechanisms``, e.g. from a model the
+            diagnosis extended), part of the model with their values fixed while the closure trains.
     """
 
-    def __init__(self, runs, config: AssimilationConfig = AssimilationConfig(), closure=None, surrogate=None):
+    def __init__(self, runs, config: AssimilationConfig = AssimilationConfig(), closure=None, surrogate=None,
+                 mechanisms=()):
         self.fleet = Fleet.from_runs(runs, surrogate)
         self.config = config
         self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed))
         self.model = TankModel(self.fleet.fluid, self.fleet.geometry, self.closure,
-                               self.fleet.wall_heat_capacity_J_per_K)
-        self.s0 = self.fleet.initial_state()
+                               self.fleet.wall_heat_capacity_J_per_K, mechanisms)
+        self.s0 = self.fleet.initial_state(self.model.mechanisms)
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3)
         self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
