@@ -21,6 +21,23 @@ def _load_case_or_run(spec: str):
     return run, len(run.observations) > 0
 
 
+def _parse_mechanism(spec: str):
+    """``ID:NAME=VALUE[,NAME=VALUE]`` (e.g. ``vapor_leak:mdot_kg_s=1e-4``) -> a mechanism."""
+    from .mechanisms import make_mechanism
+
+    mid, _, rest = spec.partition(":")
+    values = {}
+    for item in filter(None, rest.split(",")):
+        name, eq, value = item.partition("=")
+        try:
+            values[name.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq:
+            raise ValueError(f"--mechanism {spec!r}: expected ID:NAME=VALUE[,NAME=VALUE], e.g. vapor_leak:mdot_kg_s=1e-4")
+    return make_mechanism(mid.strip(), **values)
+
+
 def cmd_simulate(args) -> int:
     from .plotting import plot_run
     from .run import write_run
@@ -33,11 +50,15 @@ def cmd_simulate(args) -> int:
         from .saved import load_model
 
         closure, mechanisms, _ = load_model(args.model)
-    sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)
+    hidden = tuple(_parse_mechanism(spec) for spec in args.mechanism)
+    model_name = f"the model in {args.model}" if args.model else "the reference closure"
+    if hidden:
+        model_name += " and the mechanism(s) " + ", ".join(f"{m.id} {m.values_dict()}" for m in hidden)
+    sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=tuple(mechanisms) + hidden)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     channels = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
-    (sim,) = solution_to_runs(run, sol, noise=args.noise, seed=args.seed, channels=channels)
+    (sim,) = solution_to_runs(run, sol, noise=args.noise, seed=args.seed, channels=channels, model_name=model_name)
     json_path, csv_path = write_run(sim, out)
     png = out / f"{sim.name}.png"
     clean = solution_to_runs(run, sol, noise="clean", channels=channels)[0]
@@ -177,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
     s.add_argument("--model", default=None, help="a saved model directory (closure and mechanisms); default: the "
                    "reference correlations")
+    s.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
+                   help="add a mechanism to the simulation, e.g. vapor_leak:mdot_kg_s=1e-4 (a hidden effect for "
+                        "testing the diagnosis); repeatable")
     s.set_defaults(func=cmd_simulate)
     a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
     a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")

@@ -50,7 +50,7 @@ def output_times(fleet: Fleet, dt_s: float | None, t_eval=None) -> Tensor:
     """Output grid: ``t_eval`` if given, else every ``dt_s`` plus the runs' observation times."""
     t0, t1 = fleet.t0_s, fleet.t_end_s
     if t_eval is not None:
-        return torch.as_tensor(t_eval, dtype=torch.float64)
+        return torch.tensor(np.asarray(t_eval, dtype=float))  # a copy: run arrays are read-only
     if dt_s is None or not dt_s > 0:
         raise ValueError(f"output_dt_s must be > 0 s, got {dt_s}")
     grid = [np.arange(t0, t1, dt_s), [t1]]

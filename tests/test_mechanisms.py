@@ -1,0 +1,133 @@
+"""Mechanisms: bounds, absent at 0, conservation with them as external inputs, sensor effects."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from tankode import get_case, simulate
+from tankode.analytic import AnalyticFluid, analytic_state
+from tankode.closures import ReferenceClosure, ScaledClosure
+from tankode.forcing import Forcing
+from tankode.geometry import geometry_from_spec
+from tankode.integrate import integrate, state_scale
+from tankode.mechanisms import MECHANISMS, make_mechanism, mechanisms_from_spec, mechanisms_spec
+from tankode.mechanisms.noncondensable import R_J_PER_MOLK
+from tankode.model import TankModel
+from tankode.saved import load_model, save_model
+from tankode.solver import AdaptiveRK, NoGradient
+
+CW = 2.0e5
+TIGHT = AdaptiveRK(rtol=1e-10, atol=1e-12)
+
+
+def _tank(mechanisms=()):
+    fluid = AnalyticFluid()
+    geom = geometry_from_spec({"shape": "vertical_cylinder", "radius_m": 0.9, "height_m": 2.2})
+    model = TankModel(fluid, geom, ReferenceClosure(), CW, mechanisms)
+    return model, analytic_state(fluid, geom, 3e5, 30.0, 20.5, 25.0, 0.6), geom
+
+
+def _run(model, s0, geom, forcing, t_end=1800.0, n=31):
+    t = torch.linspace(0, t_end, n, dtype=torch.float64)
+    states, _ = integrate(model, s0, [(0.0, t_end)], lambda t0, s: forcing, t, state_scale(s0, geom.volume_m3),
+                          TIGHT, NoGradient())
+    return t, states[0]
+
+
+def test_every_mechanism_is_documented_bounded_and_absent_at_zero():
+    model0, s0, _ = _tank()
+    f = Forcing.rest(1, mdot_v_in_kg_s=2e-3, h_v_in_J_per_kg=5e5, slosh_amplitude_m=0.01, slosh_frequency_Hz=0.5)
+    ref = model0(torch.tensor(0.0), s0, f)
+    for mid, cls in MECHANISMS.items():
+        m = make_mechanism(mid)
+        assert cls.__doc__ and m.signature and m.params
+        # value 0 = absent: the right-hand side and the observations are the baseline's exactly
+        model, _, _ = _tank([m])
+        assert torch.equal(model(torch.tensor(0.0), s0, f), ref), mid
+        assert torch.equal(model.observe(s0), model0.observe(s0)), mid
+        p = m.params[0]
+        with pytest.raises(ValueError, match=rf"{p.name} = .* outside its allowed range"):
+            make_mechanism(mid, **{p.name: p.upper * 2 + 1})
+    with pytest.raises(ValueError, match="unknown mechanism 'warp_drive'"):
+        make_mechanism("warp_drive")
+    with pytest.raises(ValueError, match="has no parameter"):
+        make_mechanism("vapor_leak", Q_W=3.0)
+
+
+def test_heat_leaks_add_exactly_their_power_to_the_energy():
+    for mid in ("heat_leak_liquid", "heat_leak_vapor", "heat_leak_wall"):
+        model, s0, geom = _tank([make_mechanism(mid, Q_W=400.0)])
+        t, s = _run(model, s0, geom, Forcing.rest(1))
+        E = model.total_energy_J(s[None])[0]
+        assert torch.allclose(E - E[0], 400.0 * t, rtol=1e-7, atol=1e-2), mid
+        mass = s[:, 0] + s[:, 1]
+        assert (mass - mass[0]).abs().max() / mass[0] < 1e-9
+
+
+def test_closed_tank_stays_conservative_with_stratification_and_wall_capacity_error():
+    model, s0, geom = _tank([make_mechanism("thermal_stratification", dT_K=0.8),
+                             make_mechanism("wall_heat_capacity_error", eps=0.5)])
+    t, s = _run(model, s0, geom, Forcing.rest(1, slosh_amplitude_m=0.01, slosh_frequency_Hz=0.5))
+    E = model.total_energy_J(s[None])[0]
+    assert (E - E[0]).abs().max() / (float(s[0, 0] + s[0, 1]) * 4.46e5) < 1e-8
+    # both act: the run differs from the baseline's
+    base, _, _ = _tank()
+    _, sb = _run(base, s0, geom, Forcing.rest(1, slosh_amplitude_m=0.01, slosh_frequency_Hz=0.5))
+    assert (s[-1, 0] - sb[-1, 0]).abs() > 1e-2 and (s[-1, 4] - sb[-1, 4]).abs() > 1e-3
+
+
+def test_leaks_and_meter_bias_move_the_mass_they_say():
+    model, s0, geom = _tank([make_mechanism("vapor_leak", mdot_kg_s=1e-3), make_mechanism("liquid_leak", mdot_kg_s=5e-3),
+                             make_mechanism("inflow_meter_bias", beta=0.2)])
+    t, s = _run(model, s0, geom, Forcing.rest(1, mdot_v_in_kg_s=2e-3, h_v_in_J_per_kg=5e5))
+    mass = s[:, 0] + s[:, 1]
+    assert torch.allclose(mass - mass[0], (2e-3 * 1.2 - 1e-3 - 5e-3) * t, rtol=1e-8, atol=1e-8)
+
+
+def test_sensor_offsets_enter_the_observation_and_the_initial_state():
+    run = get_case("case4").until(600.0)
+    n = 300.0
+    sol = simulate(run, mechanisms=[make_mechanism("noncondensable_gas", n_mol=n)], output_dt_s=60.0)
+    base = simulate(run, output_dt_s=60.0)
+    # The run's initial pressure is a sensor reading: both read it at t0, the hydrogen in the
+    # mechanism's tank is below it by n R T_v / V_v.
+    assert float(sol.observations[0, 0, 0]) == pytest.approx(run.initial.p_v_Pa, rel=1e-6)
+    s = sol.states[0, 0]
+    p_inert = n * R_J_PER_MOLK * run.initial.T_v_K / float(s[5])
+    assert float(base.states[0, 0, 0] - s[0]) > 0  # less hydrogen vapour
+    from tankode import Fleet
+
+    model = TankModel(Fleet.from_runs(run).fluid, Fleet.from_runs(run).geometry, ReferenceClosure(), 2.44e6)
+    # (the observation takes T_v from the surrogate, within 7e-5 of CoolProp's)
+    assert float(sol.observations[0, 0, 0] - model.observe(s[None])[0, 0]) == pytest.approx(p_inert, rel=1e-4)
+    bias = simulate(run, mechanisms=[make_mechanism("pressure_sensor_bias", bias_Pa=-5e3)], output_dt_s=60.0)
+    assert float(bias.observations[0, 0, 0]) == pytest.approx(run.initial.p_v_Pa, rel=1e-6)
+
+
+def test_per_environment_values_match_separate_runs():
+    run = get_case("case3").until(900.0)
+    values = [[0.0], [2e-4], [5e-4]]
+    m = make_mechanism("vapor_leak")
+    m.set_values(values)
+    batched = simulate([run] * 3, mechanisms=[m], output_dt_s=60.0).observations
+    for e, v in enumerate(values):
+        one = simulate(run, mechanisms=[make_mechanism("vapor_leak", mdot_kg_s=v[0])], output_dt_s=60.0).observations
+        assert torch.allclose(batched[e], one[0], rtol=1e-5)
+
+
+def test_saved_model_round_trips_closure_factors_and_mechanisms(tmp_path):
+    closure = ScaledClosure(ReferenceClosure(), torch.tensor([1.0, 1.5, 0.7, 1.1], dtype=torch.float64))
+    mechs = [make_mechanism("heat_leak_wall", Q_W=120.0), make_mechanism("pressure_sensor_bias", bias_Pa=-800.0)]
+    save_model(tmp_path / "m", closure, "ParaHydrogen", {"x": 1}, mechanisms=mechs)
+    c2, m2, meta = load_model(tmp_path / "m")
+    assert torch.equal(c2.factors, closure.factors)
+    assert mechanisms_spec(m2) == mechanisms_spec(mechs)
+    assert mechanisms_from_spec(mechanisms_spec(mechs))[0].values_dict() == {"Q_W": 120.0}
+    bad = tmp_path / "m" / "model.json"
+    bad.write_text(bad.read_text().replace('"Q_W": 120.0', '"Q_W": -5.0'))
+    with pytest.raises(ValueError, match=r"model.json: mechanisms: .*Q_W = -5 W is outside"):
+        load_model(tmp_path / "m")
+    assert math.isfinite(meta["info"]["x"])
+    assert np.isfinite(float(c2.factors.sum()))
