@@ -21,6 +21,9 @@ demo: $(STAMP)
 	$(VENV)/bin/tankode assimilate demo_out/case1.json --out demo_out/agent --iters 5 --logdir demo_out/tensorboard
 	$(VENV)/bin/tankode predict demo_out/agent demo_out/case1.json --out demo_out/prediction
 	$(VENV)/bin/tankode bench
+	# A run with a hidden effect (an unmetered vapour leak of 0.1 g/s), then its diagnosis.
+	$(VENV)/bin/tankode simulate case3 --out demo_out/hidden --noise low --seed 7 --mechanism vapor_leak:mdot_kg_s=1e-4
+	$(VENV)/bin/tankode diagnose demo_out/hidden/case3.json --out demo_out/diagnosis
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -107,8 +107,10 @@ def plot_cost_curves(path, curves: Mapping[str, Curve], *, xlabel: str, ylabel: 
     own = ax is None
     if own:
         fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    for (label, c), color in zip(curves.items(), _STUDY_COLORS):
-        ax.plot(c.x, c.y, "o-", color=color, lw=1.6, ms=4, label=label)
+    for i, ((label, c), color) in enumerate(zip(curves.items(), _STUDY_COLORS)):
+        # Marker and line style vary too, so that curves lying on top of each other stay visible.
+        ax.plot(c.x, c.y, marker="osD^v"[i % 5], ls=("-", "--", "-.", ":")[i % 4], color=color, lw=1.6,
+                ms=5 if i % 5 else 6, mfc="none" if i % 2 else color, label=label)
         if c.lo is not None and c.hi is not None:
             ax.fill_between(c.x, c.lo, c.hi, color=color, alpha=0.2, lw=0)
             ax.vlines(c.x, c.lo, c.hi, color=color, lw=1.0, alpha=0.7)

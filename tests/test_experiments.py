@@ -41,3 +41,55 @@ def test_sensitivity_quick(tmp_path):
     _run("sensitivity.py", tmp_path)
     assert (tmp_path / "summary.md").read_text().startswith("# Sobol sensitivity")
     assert any(p.suffix == ".png" for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("script, mode", [("noise.py", "growing"), ("fixed_windows.py", "fixed")])
+def test_noise_studies_quick(tmp_path, script, mode):
+    _run(script, tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["mode"] == mode
+    assert set(summary["levels"]) == {"clean", "low", "high"}
+    for level, d in summary["levels"].items():
+        assert len(d["J_after"]) == 2
+        assert d["J_falls_in_first_window"], (level, d["J_first_update"])
+        assert len(d["predictions"]) == 2  # the agents of both windows predicted the whole (cut) run
+    assert summary["levels"]["low"]["noise_floor_J"] == pytest.approx(2.5)
+    for name in ("cost_vs_time.png", "prediction_clean.png", "prediction_low.png", "prediction_high.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+    assert (tmp_path / "cost_vs_time.csv").read_text().count("\n") == 1 + 3 * 2
+    assert (tmp_path / "summary.md").read_text().startswith("# ")
+
+
+def test_minibatch_quick(tmp_path):
+    _run("minibatch.py", tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    table = {row["fraction"]: row for row in summary["table"]}
+    assert set(table) == {1.0, 0.5, 0.05}
+    assert table[1.0]["repetitions"] == 1 and table[0.05]["repetitions"] == 2
+    assert summary["J_falls_in_first_window"]
+    assert all(row["J_validation_mean"] > 0 for row in table.values())
+    assert (tmp_path / "cost_vs_time.png").stat().st_size > 10_000
+    assert (tmp_path / "table.csv").exists() and (tmp_path / "runs.csv").exists()
+    assert (tmp_path / "summary.md").read_text().startswith("# Mini-batch study")
+
+
+@pytest.mark.slow  # ~2 minutes even cut to 2 h: three fits of two long stiff runs and two CLI runs
+def test_mhtb_quick(tmp_path):
+    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
+        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
+    _run("mhtb.py", tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["table"]) == {"P263968K", "P263981D"}
+    for test, models in summary["table"].items():
+        assert {"tankode_baseline", "tankode_calibrated", "tankode_extended", "tankode_leave_one_out",
+                "ebm"} <= set(models)
+        for model, rmse in models.items():
+            assert set(rmse) == {"p_v_Pa", "T_v_K", "T_l_K"}, (test, model)
+            assert all(v >= 0 for v in rmse.values())
+    rows = (tmp_path / "table.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * 5 * 3
+    assert set(summary["leave_one_out"]) == {"P263968K", "P263981D"}
+    assert all(v["ok"] for v in summary["cli_predict"].values())
+    assert (tmp_path / "diagnosis" / "model" / "model.json").exists()
+    for name in ("mhtb_P263968K.png", "mhtb_P263981D.png"):
+        assert (tmp_path / name).stat().st_size > 10_000

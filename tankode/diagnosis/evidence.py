@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..integrate import SimulationError
 from .fit import Fit
 from .forward import FreeParam, Problem, mechanism_params
 from .residuals import loss_from_terms
@@ -13,6 +14,8 @@ from .residuals import loss_from_terms
 # Finite-difference step of the score test in normalised units: one typical magnitude of the
 # parameter, where its response is still close to linear and far above the solver's error.
 SCORE_STEP = 1.0
+# Step fractions tried in turn when the perturbed simulation fails (leaves the property domain).
+SCORE_STEP_SHRINK = (1.0, 0.1, 0.01)
 
 
 @dataclass(frozen=True)
@@ -37,10 +40,19 @@ def score_tests(problem: Problem, baseline: Fit, candidates: list[str], train: n
     """Score every candidate at 0 from one batched simulation (baseline + one perturbation per parameter)."""
     mparams = [p for mid in candidates for p in mechanism_params(mid)]
     params = list(baseline.params) + mparams
-    steps = np.array([SCORE_STEP * p.scale if p.upper > 0 else -SCORE_STEP * p.scale for p in mparams])
-    V = np.repeat(np.concatenate([baseline.values, np.zeros(len(mparams))])[None], len(mparams) + 1, axis=0)
-    V[1:, len(baseline.params):] += np.diag(steps)
-    pred = problem.predict(params, V)  # (1 + m, env, T, 5)
+    base_steps = np.array([SCORE_STEP * p.scale if p.upper > 0 else -SCORE_STEP * p.scale for p in mparams])
+    # A full step can drive a small ullage out of the property domain (e.g. 100 W into 2 m^3 of
+    # vapor for hours); the score is a derivative, so a smaller step measures the same thing.
+    for shrink in SCORE_STEP_SHRINK:
+        steps = base_steps * shrink
+        V = np.repeat(np.concatenate([baseline.values, np.zeros(len(mparams))])[None], len(mparams) + 1, axis=0)
+        V[1:, len(baseline.params):] += np.diag(steps)
+        try:
+            pred = problem.predict(params, V)  # (1 + m, env, T, 5)
+            break
+        except SimulationError:
+            if shrink == SCORE_STEP_SHRINK[-1]:
+                raise
     sel = train[:, :, None] & problem.obs.measured
     R = problem.normalised_residuals(pred)[:, sel]  # (1 + m, n_data)
     r = R[0]

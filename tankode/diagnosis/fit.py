@@ -32,7 +32,8 @@ class Fit:
         params: the fitted parameters (``FreeParam``), in order.
         values: their estimates in physical units ``(n,)``.
         std: their standard errors ``(n,)`` from the Gauss-Newton covariance, inflated by the
-            reduced chi-square when it exceeds 1 (misfit the noise does not explain).
+            reduced chi-square when it exceeds 1 (misfit the noise does not explain); 0 for a
+            parameter held fixed by a degenerate box (lower == upper).
         chi2: sum of squared normalised training residuals at the estimate.
         n_data: number of training residuals.
         pred: ``(env, T, 5)`` predicted observations at the estimate (the whole run).
@@ -101,11 +102,12 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
     if pred is None:
         pred = problem.predict(params, z * scale)
     chi2 = float(r @ r)
-    std = np.full(len(params), np.nan)
-    if len(params):
-        dof = max(n_data - len(params), 1)
-        cov = np.linalg.pinv(jac.T @ jac) * max(1.0, chi2 / dof)
-        std = np.sqrt(np.clip(np.diag(cov), 0, None)) * scale
+    std = np.zeros(len(params))
+    free = hi > lo  # a degenerate box holds a parameter fixed: no uncertainty, not in the covariance
+    if free.any():
+        dof = max(n_data - int(free.sum()), 1)
+        cov = np.linalg.pinv(jac[:, free].T @ jac[:, free]) * max(1.0, chi2 / dof)
+        std[free] = np.sqrt(np.clip(np.diag(cov), 0, None)) * scale[free]
     return Fit(list(params), z * scale, std, chi2, n_data, pred, jac, problem.n_simulations - start, status)
 
 

@@ -81,18 +81,20 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
             L.append("The calibrated baseline predicts the held-out data within the noise.")
     th = d.thresholds
     L += ["", f"Decision rule: dBIC <= {th.delta_bic}, held-out gain >= {th.heldout_gain} with the lower end of its "
-          f"95 % block-bootstrap interval > {th.gain_ci_low}, and estimate / standard error >= {th.z_score}.", ""]
+          f"95 % block-bootstrap interval > {th.gain_ci_low}, estimate / standard error >= {th.z_score}, and at least "
+          f"{th.explained:.0%} of the baseline's held-out loss above the noise floor explained.", ""]
     L += ["## Candidates", "",
-          "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | verdict |",
-          "|---|---|---|---|---|---|---|---|"]
+          "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | explained | verdict |",
+          "|---|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(d.ranking, 1):
         est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
         verdict = "cause" if c.passes and c.mechanism == d.cause else ("passes" if c.passes else "; ".join(c.reasons)
                                                                         or "not refitted")
         gain = (f"{c.heldout_gain:.3f} [{c.heldout_gain_ci[0]:.3f}, {c.heldout_gain_ci[1]:.3f}]"
                 if c.refit else "")
-        L.append(f"| {i} | `{c.mechanism}` | {est} | {c.score:.3g} | {c.delta_bic:.1f} | {c.likelihood_ratio:.1f} | "
-                 f"{gain} | {verdict} |")
+        expl = f"{c.explained:.0%}" if c.refit else ""
+        ic = f"{c.delta_bic:.1f} | {c.likelihood_ratio:.1f}" if c.refit else " | "
+        L.append(f"| {i} | `{c.mechanism}` | {est} | {c.score:.3g} | {ic} | {gain} | {expl} | {verdict} |")
     L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", "",
           "| channel | baseline | extended |", "|---|---|---|"]
     ext = d.extended["heldout_loss_by_channel"] if d.extended else {}

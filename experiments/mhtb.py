@@ -1,0 +1,253 @@
+"""NASA MHTB self-pressurization tests (issue 6): tankode on real data, against the published EBM.
+
+Two digitised liquid-hydrogen tests (P263968K, 25 % fill, 18.5 h; P263981D, 90 % fill, 5.4 h;
+``../shared/data/mhtb/``, read in place) and, beside each, the energy-balance model's (EBM)
+published prediction. The script
+
+1. simulates both tests with the baseline model (reference closure, LSODA) and reports its misfit,
+2. calibrates on both tests and diagnoses the missing mechanism (leave-one-test-out held-out
+   gain); the report and the extended model go to ``OUT/diagnosis`` (``model/`` is the saved model),
+3. tabulates the RMSE of pressure, ullage and liquid temperature for tankode baseline,
+   calibrated and extended against the EBM's, on each test (one figure per test),
+4. calibrates on one test and predicts the other (leave one test out) and checks that
+   ``tankode predict OUT/diagnosis/model RUN.json`` runs on each test.
+
+Usage: ``python experiments/mhtb.py [--quick] [--out results/mhtb]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from tankode.compare import channel_rmse, read_peer_prediction, solution_observations  # noqa: E402
+from tankode.diagnosis import DiagnosisConfig, LeaveOneRunOut, Problem, diagnose, fit, write_report  # noqa: E402
+from tankode.diagnosis.forward import closure_params, mechanism_params  # noqa: E402
+from tankode.fleet import Fleet  # noqa: E402
+from tankode.mechanisms import MECHANISMS  # noqa: E402
+from tankode.run import read_run  # noqa: E402
+from tankode.simulate import simulate  # noqa: E402
+
+# ---- configuration ---------------------------------------------------------------------------
+DATA = Path("../shared/data/mhtb")
+RUNS = ("P263968K", "P263981D")
+FLUID = "ParaHydrogen"
+CHANNELS = ("p_v_Pa", "T_v_K", "T_l_K")
+# Samples are ~10-20 min apart and the residuals correlate over hours: one-hour bootstrap blocks.
+FULL = DiagnosisConfig(candidates=tuple(MECHANISMS), split=LeaveOneRunOut(), refit_top=3, max_iterations=8,
+                       max_iterations_refit=4, block_s=3600.0)
+QUICK = DiagnosisConfig(candidates=("heat_leak_vapor", "pressure_sensor_bias", "wall_heat_capacity_error"),
+                        split=LeaveOneRunOut(), refit_top=1, max_iterations=1, max_iterations_refit=1,
+                        block_s=1800.0, n_boot=200)
+QUICK_UNTIL_S = 7200.0  # both tests cut to 2 h (the 25 % fill test has 12 samples by then)
+OUTPUT_DT_S = 60.0
+# -----------------------------------------------------------------------------------------------
+
+
+def _runs(quick):
+    runs = [read_run(DATA / f"{n}.json") for n in RUNS]
+    return [r.until(QUICK_UNTIL_S) for r in runs] if quick else runs
+
+
+def _predict(run, closure=None, mechanisms=()):
+    return simulate(run, closure, output_dt_s=OUTPUT_DT_S, mechanisms=mechanisms)
+
+
+def _calibrate_on(run, mechanism, max_iterations):
+    """Closure factors (+ ``mechanism``'s parameters) fitted to all of ``run``; returns (closure, mechanisms, fit)."""
+    problem = Problem(Fleet.from_runs([run]))
+    params = closure_params() + (mechanism_params(mechanism) if mechanism else [])
+    f = fit(problem, params, np.zeros(len(params)), np.ones((1, len(problem.obs.t_s)), bool), max_iterations)
+    closure, mechs = problem.build(f.params, f.values)
+    return closure, mechs, f
+
+
+def _misfit_summary(run, rmse):
+    """What the uncalibrated baseline gets wrong, per channel: RMSE and bias in sensor sigmas."""
+    sig = {"p_v_Pa": run.noise_std["p_v"], "T_v_K": run.noise_std["T_v"], "T_l_K": run.noise_std["T_l"]}
+    return {ch: {"rmse": v["rmse"], "bias": v["bias"], "rmse_sigma": v["rmse"] / sig[ch], "bias_sigma": v["bias"] / sig[ch]}
+            for ch, v in rmse.items()}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="both tests cut to 2 h, 3 candidates (CI smoke run)")
+    ap.add_argument("--out", default="results/mhtb")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = QUICK if args.quick else FULL
+    start = time.perf_counter()
+    runs = _runs(args.quick)
+    ebm = {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
+
+    # 1. baseline (reference closure, estimated wall heat capacity)
+    baseline = {r.name: _predict(r) for r in runs}
+    notes = sorted({n for s in baseline.values() for n in s.notes})
+    rm = {r.name: {"tankode_baseline": channel_rmse(r, solution_observations(baseline[r.name]), CHANNELS),
+                   "ebm": channel_rmse(r, ebm[r.name], CHANNELS)} for r in runs}
+    misfit = {r.name: _misfit_summary(r, rm[r.name]["tankode_baseline"]) for r in runs}
+    print("baseline misfit:", json.dumps(misfit, indent=1), flush=True)
+
+    # 2. diagnosis on both tests (leave one test out)
+    d = diagnose(runs, config=config, progress=lambda line: print(line, flush=True))
+    paths = write_report(d, out / "diagnosis", FLUID)
+    best = d.ranking[0] if d.ranking else None
+    print(f"diagnosis: cause {d.cause} ({d.wall_time_s:.0f} s)", flush=True)
+
+    # 3. calibrated (baseline fit on both) and extended (with the cause) against the EBM
+    cal_closure, cal_mechs = d.problem.build(d.baseline_fit.params, d.baseline_fit.values)
+    ext_closure, ext_mechs = d.extended_model()
+    calibrated = {r.name: _predict(r, cal_closure, cal_mechs) for r in runs}
+    extended = {r.name: _predict(r, ext_closure, ext_mechs) for r in runs}
+    for r in runs:
+        rm[r.name]["tankode_calibrated"] = channel_rmse(r, solution_observations(calibrated[r.name]), CHANNELS)
+        rm[r.name]["tankode_extended"] = channel_rmse(r, solution_observations(extended[r.name]), CHANNELS)
+
+    # 4. leave one test out: calibrate on one, predict the other from its metadata and inputs
+    loo = {}
+    for held in runs:
+        (train,) = [r for r in runs if r is not held]
+        closure, mechs, f = _calibrate_on(train, d.cause, config.max_iterations)
+        sol = _predict(held, closure, mechs)
+        rm[held.name]["tankode_leave_one_out"] = channel_rmse(held, solution_observations(sol), CHANNELS)
+        loo[held.name] = {"calibrated_on": train.name, "mechanism": d.cause, "fit_status": f.status,
+                          "values": {p.label: float(v) for p, v in zip(f.params, f.values)}, "solution": sol,
+                          "p_rmse_Pa": rm[held.name]["tankode_leave_one_out"]["p_v_Pa"]["rmse"],
+                          "ebm_p_rmse_Pa": rm[held.name]["ebm"]["p_v_Pa"]["rmse"]}
+        loo[held.name]["below_ebm"] = loo[held.name]["p_rmse_Pa"] < loo[held.name]["ebm_p_rmse_Pa"]
+        print(f"leave one out: {train.name} -> {held.name}: p RMSE {loo[held.name]['p_rmse_Pa']:.0f} Pa "
+              f"(EBM {loo[held.name]['ebm_p_rmse_Pa']:.0f} Pa)", flush=True)
+
+    # the saved model (calibrated on both) through the CLI, on each test
+    cli = {}
+    for r in runs:
+        run_json = DATA / f"{r.name}.json" if not args.quick else _write_cut(r, out / "cut_runs")
+        proc = subprocess.run([sys.executable, "-m", "tankode.cli", "predict", str(paths["model"]), str(run_json),
+                               "--out", str(out / "predict" / r.name)], capture_output=True, text=True,
+                              env=dict(os.environ, MPLBACKEND="Agg"))
+        ok = proc.returncode == 0
+        entry = {"returncode": proc.returncode, "ok": ok}
+        if ok:
+            pred = read_run(out / "predict" / r.name / f"{r.name}.json")
+            entry["p_rmse_Pa"] = channel_rmse(r, pred.observations, ("p_v_Pa",))["p_v_Pa"]["rmse"]
+        else:
+            entry["stderr"] = proc.stderr[-2000:]
+        cli[r.name] = entry
+        print(f"tankode predict on {r.name}: {entry}", flush=True)
+
+    wall = time.perf_counter() - start
+    table = [{"test": name, "channel": ch, "model": model, **rm[name][model][ch]}
+             for name in rm for model in ("tankode_baseline", "tankode_calibrated", "tankode_extended",
+                                          "tankode_leave_one_out", "ebm") for ch in CHANNELS]
+    with open(out / "table.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(table[0]))
+        w.writeheader()
+        w.writerows(table)
+    summary = {
+        "quick": args.quick, "runs": [r.name for r in runs], "notes": notes, "baseline_misfit": misfit,
+        "diagnosis": {"cause": d.cause, "split": d.split, "wall_time_s": d.wall_time_s,
+                      "n_simulations": d.n_simulations, "unexplained": d.unexplained,
+                      "baseline_closure_factors": d.baseline["closure_factors"],
+                      "baseline_heldout_loss": d.baseline["heldout_loss"],
+                      "best_candidate": None if best is None else {
+                          k: best.to_json()[k] for k in ("mechanism", "params", "params_std", "z_score", "delta_bic",
+                                                         "heldout_gain", "heldout_gain_ci", "explained", "reasons")}},
+        "table": {name: {model: {ch: rm[name][model][ch]["rmse"] for ch in CHANNELS} for model in rm[name]}
+                  for name in rm},
+        "leave_one_out": {k: {kk: vv for kk, vv in v.items() if kk != "solution"} for k, v in loo.items()},
+        "leave_one_out_p_below_ebm_on_both": all(v["below_ebm"] for v in loo.values()),
+        "cli_predict": cli, "wall_time_s": wall,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    (out / "summary.md").write_text(_markdown(summary))
+    for r in runs:
+        _figure(out / f"mhtb_{r.name}.png", r, ebm[r.name], baseline[r.name], extended[r.name],
+                loo[r.name]["solution"], d.cause)
+    print((out / "summary.md").read_text())
+    print(f"wall time {wall:.0f} s")
+    return summary
+
+
+def _write_cut(run, folder):
+    from tankode.run import write_run
+
+    json_path, _ = write_run(run, folder)
+    return json_path
+
+
+_MODELS = {"tankode_baseline": "tankode baseline", "tankode_calibrated": "tankode calibrated",
+           "tankode_extended": "tankode extended", "tankode_leave_one_out": "tankode leave-one-test-out",
+           "ebm": "EBM (published)"}
+
+
+def _markdown(s) -> str:
+    L = ["# MHTB self-pressurization: tankode against the EBM", "",
+         f"Tests {', '.join(s['runs'])}{' (quick: cut to 2 h)' if s['quick'] else ''}. "
+         "RMSE at the measured sample times of each channel (p in Pa, T in K).", "",
+         "| test | model | p_v [Pa] | T_v [K] | T_l [K] |", "|---|---|---|---|---|"]
+    for name, models in s["table"].items():
+        for m, v in models.items():
+            L.append(f"| {name} | {_MODELS[m]} | {v['p_v_Pa']:.0f} | {v['T_v_K']:.3f} | {v['T_l_K']:.3f} |")
+    dg = s["diagnosis"]
+    L += ["", f"Diagnosis ({dg['split']}): cause **{dg['cause']}**."]
+    b = dg["best_candidate"]
+    if b:
+        L.append(f"Best candidate {b['mechanism']}: held-out gain {b['heldout_gain']:.3f} "
+                 f"[{b['heldout_gain_ci'][0]:.3f}, {b['heldout_gain_ci'][1]:.3f}], dBIC {b['delta_bic']:.1f}, "
+                 f"explains {b['explained']:.0%}; " + ("; ".join(b["reasons"]) or "passes every threshold") + ".")
+    L += ["", "Leave one test out (pressure RMSE on the held-out test):", ""]
+    for name, v in s["leave_one_out"].items():
+        L.append(f"* {name} predicted from {v['calibrated_on']}: {v['p_rmse_Pa']:.0f} Pa vs EBM "
+                 f"{v['ebm_p_rmse_Pa']:.0f} Pa ({'below' if v['below_ebm'] else 'NOT below'} the EBM)")
+    L += ["", "`tankode predict diagnosis/model RUN.json`: " + ", ".join(
+        f"{k} {'ok' if v['ok'] else 'FAILED'}" for k, v in s["cli_predict"].items()), "",
+        f"Wall time {s['wall_time_s']:.0f} s."]
+    return "\n".join(L) + "\n"
+
+
+def _figure(path, run, ebm, base, ext, loo_sol, cause):
+    fig, (ax_p, ax_t) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    ext_label = f"tankode extended ({cause})" if cause else "tankode calibrated (no cause found)"
+    t_p, y_p = run.observations.channel("p_v_Pa")
+    ax_p.plot(t_p / 3600, y_p / 1e3, "ko", ms=3, label="data")
+    tp, yp = ebm.channel("p_v_Pa")
+    ax_p.plot(tp / 3600, yp / 1e3, "--", color="tab:green", label="EBM (published)")
+    for sol, color, ls, label in ((base, "tab:red", "-", "tankode baseline"), (ext, "tab:blue", "-", ext_label),
+                                  (loo_sol, "tab:purple", ":", "tankode, calibrated on the other test")):
+        t = sol.t_s.numpy() / 3600
+        ax_p.plot(t, sol.observations[0, :, 0].numpy() / 1e3, ls, color=color, lw=1.3, label=label)
+        for j, mk in ((1, "v"), (2, "l")):
+            ax_t.plot(t, sol.observations[0, :, j].numpy(), ls, color=color, lw=1.3 if j == 1 else 0.9)
+    for ch, mk, name in (("T_v_K", "o", "T_v"), ("T_l_K", "s", "T_l")):
+        t_d, y_d = run.observations.channel(ch)
+        ax_t.plot(t_d / 3600, y_d, "k" + mk, ms=3, mfc="none" if ch == "T_l_K" else "k", label=f"{name} data")
+        te, ye = ebm.channel(ch)
+        ax_t.plot(te / 3600, ye, "--", color="tab:green", lw=1.3 if ch == "T_v_K" else 0.9)
+    ax_p.set_ylabel("ullage pressure p_v [kPa]")
+    ax_t.set_ylabel("temperature [K] (upper: T_v, lower: T_l)")
+    ax_t.set_xlabel("time [h]")
+    ax_p.set_title(f"MHTB test {run.name} (fill {run.initial.fill_ratio:.0%})")
+    ax_p.legend(fontsize=7)
+    ax_t.legend(fontsize=7)
+    for ax in (ax_p, ax_t):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
