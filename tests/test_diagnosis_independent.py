@@ -28,6 +28,15 @@ KNOWN_FAILURES = {
     ("sphere_vent", "heat_leak_wall"): "names heat_leak_liquid (194 W) over heat_leak_wall: the other simulator's "
                                        "wall is tied to its liquid (h_wl ~ 200 W/m2K), their signatures differ by "
                                        "dBIC ~ 60",
+    ("vcyl_press_hold_vent", "vapor_leak"): "names none: the calibrated baseline misses this run's warm-gas "
+                                            "pressurisation by far more than the leak's signature; the leak "
+                                            "explains 8 % of the held-out misfit",
+    ("hcyl_drain_fill", "pressure_sensor_bias"): "names none: the baseline misses the drain, fill and sloshing of "
+                                                 "this run by ~25 sigma in pressure; nothing explains > 8 % of it",
+    ("hcyl_drain_fill", "noncondensable_gas"): "names none: as for the sensor bias, the baseline's misfit of "
+                                               "this run swamps the 80 mol; nothing explains > 7 % of it",
+    ("small_selfpress", "wall_heat_capacity_error"): "names none: estimate eps 0.50 for 1.3, held-out gain 0.02 "
+                                                     "(the closure multipliers absorb the wall transient)",
 }
 
 

@@ -142,12 +142,7 @@ def _plot_prediction(d: Diagnosis, e: int, path) -> None:
             ax.axvspan(t[held][0], t[held][-1], color="0.9", zorder=0, label="held out")
         ax.set_ylabel(f"{label} [{unit}]")
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, loc="best")
-    axes[-1, 0].set_xlabel("time [min]")
-    fig.suptitle(f"{d.runs[e]}: prediction and data (held-out span shaded)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _finish(fig, axes, "time [min]", f"{d.runs[e]}: prediction and data (held-out span shaded)", path)
 
 
 def _plot_residuals(d: Diagnosis, e: int, path) -> None:
@@ -168,9 +163,14 @@ def _plot_residuals(d: Diagnosis, e: int, path) -> None:
             ax.axvline(t[d.heldout[e]][0], color="k", ls="--", lw=0.8)
         ax.set_ylabel(f"{_UNITS[CHANNELS[c]][0]} residual [sigma]")
         ax.grid(alpha=0.3)
+    _finish(fig, axes, "time [min] (dashed: start of the held-out span; band: +-3 sigma)",
+            f"{d.runs[e]}: residuals (prediction - data) in noise sigmas", path)
+
+
+def _finish(fig, axes, xlabel: str, title: str, path) -> None:
     axes[0, 0].legend(fontsize=7, loc="best")
-    axes[-1, 0].set_xlabel("time [min] (dashed: start of the held-out span; band: +-3 sigma)")
-    fig.suptitle(f"{d.runs[e]}: residuals (prediction - data) in noise sigmas")
+    axes[-1, 0].set_xlabel(xlabel)
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
