@@ -126,3 +126,23 @@ def test_diagnose_writes_report_and_a_model_that_predicts(tmp_path):
     base = simulate(data, t_eval=obs.t_s).observations[0, :, 0].numpy()
     y = obs.values[:, 0]
     assert np.sqrt(np.mean((ext - y) ** 2)) < 0.7 * np.sqrt(np.mean((base - y) ** 2))
+
+
+def test_splits_partition_the_samples_and_validate():
+    from tankode import Fleet
+    from tankode.diagnosis import HoldOutTail, LeaveOneRunOut, Observed
+
+    runs = [_data("case1", None, 0.0, 31).until(1200.0), _data("case3", None, 0.0, 32).until(900.0)]
+    fleet = Fleet.from_runs(runs)
+    obs = Observed.from_fleet(fleet)
+    ((train, held),) = HoldOutTail(0.25).folds(fleet, obs)
+    assert not (train & held).any() and (train | held).all()
+    # the tail of each run: the last 25 % of its own duration
+    assert obs.t_s[held[0]].min() > 900.0 and obs.t_s[held[1]].min() > 675.0
+    folds = LeaveOneRunOut().folds(fleet, obs)
+    assert [h.any(1).tolist() for _, h in folds] == [[True, False], [False, True]]
+    with pytest.raises(ValueError, match="at least two runs"):
+        LeaveOneRunOut().folds(Fleet.from_runs(runs[:1]), Observed.from_fleet(Fleet.from_runs(runs[:1])))
+    with pytest.raises(ValueError, match=r"fraction must be in \(0, 0.8\]"):
+        HoldOutTail(0.9)
+    assert set(obs.phase[0]) == {"hold", "sloshing"} and "heat ingress" in set(obs.phase[1])
