@@ -72,7 +72,9 @@ class Observed:
                         raise ValueError(f"run {run.name!r} measures {CHANNELS[c]} but gives no positive "
                                          f"noise_std[{key!r}]; the diagnosis weighs residuals by it")
                     sigma[e, c] = run.noise_std[key]
-            phase[e] = [phase_of(u) for u in (fleet.inputs_at(float(tk))[e] for tk in t)]
+        inputs = np.stack([fleet.inputs_at(float(tk)) for tk in t], axis=1)  # (env, T, n_inputs)
+        for e in range(fleet.n_env):
+            phase[e] = [phase_of(u) for u in inputs[e]]
         return Observed(t, y, sigma, phase, tuple(r.name for r in fleet.runs))
 
     @property

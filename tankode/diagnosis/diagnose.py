@@ -38,7 +38,7 @@ import numpy as np
 from .._threads import single_threaded
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS
-from .data import CHANNELS, HoldOutTail, LeaveOneRunOut, Observed
+from .data import CHANNELS, HoldOutTail, LeaveOneRunOut
 from .evidence import Score, bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
 from .forward import Problem, closure_params, mechanism_params
@@ -198,6 +198,7 @@ class _Folds:
         self.problem = problem
         self.config = config
         self.folds = split.folds(problem.fleet, problem.obs)
+        self.description = split.describe()
         self.heldout = np.zeros_like(self.folds[0][1])
         for _, h in self.folds:
             self.heldout |= h
@@ -273,42 +274,40 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
         cause = ranking[0].mechanism if ranking and ranking[0].passes else None
 
-        extended_fit = None
-        extended = None
+        extended_fit = ext_pred = extended = None
         if cause is not None:
             ext, _ = fits[cause]
             all_data = np.ones_like(folds.heldout)
             extended_fit = fit(problem, ext.params, ext.values, all_data, config.max_iterations)
+            ext_pred = _stitch(fits[cause][1], extended_fit.pred, folds.heldout)
             c = ranking[0]
             extended = {
                 "mechanism": cause,
                 "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
                 "closure_factors": _factors(extended_fit),
                 "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
-                "residuals": residual_report(obs, fits[cause][1] * folds.heldout[..., None]
-                                             + extended_fit.pred * ~folds.heldout[..., None], folds.heldout),
+                "residuals": residual_report(obs, ext_pred, folds.heldout),
                 "fitted_on": "all data (calibration and held-out) for the saved model; held-out figures from "
                              "the calibration-only fit",
             }
+        base_pred = _stitch(base_held, base.pred, folds.heldout)
         baseline = {
             "closure_factors": _factors(base), "chi2": base.chi2, "n_observations": base.n_data,
             "heldout_loss": base_loss, "heldout_loss_by_channel": dict(zip(CHANNELS, base_by.tolist())),
-            "residuals": residual_report(obs, base_held * folds.heldout[..., None] + base.pred * ~folds.heldout[..., None],
-                                         folds.heldout),
+            "residuals": residual_report(obs, base_pred, folds.heldout),
             "fit_status": base.status,
         }
-        unexplained = _unexplained(obs, extended_fit.pred if extended_fit is not None else base.pred, folds.heldout)
+        unexplained = _unexplained((extended or baseline)["residuals"])
     return Diagnosis(
-        cause, ranking, baseline, extended, folds_description(config, problem.fleet), obs.run_names, unexplained,
+        cause, ranking, baseline, extended, folds.description, obs.run_names, unexplained,
         time.perf_counter() - start, problem.n_simulations, config.thresholds, problem, base, extended_fit,
-        folds.heldout, base_held * folds.heldout[..., None] + base.pred * ~folds.heldout[..., None],
-        None if extended_fit is None else fits[cause][1] * folds.heldout[..., None]
-        + extended_fit.pred * ~folds.heldout[..., None],
+        folds.heldout, base_pred, ext_pred,
     )
 
 
-def folds_description(config: DiagnosisConfig, fleet: Fleet) -> str:
-    return _split(config, fleet).describe()
+def _stitch(heldout_pred: np.ndarray, fit_pred: np.ndarray, heldout: np.ndarray) -> np.ndarray:
+    """``(env, T, 5)`` predictions: the folds' on held-out samples, the fit's on the others."""
+    return np.where(heldout[..., None], heldout_pred, fit_pred)
 
 
 def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, config, fits) -> None:
@@ -378,17 +377,14 @@ def _factors(f: Fit) -> dict:
     return {p.name[3:]: float(np.exp(v)) for p, v in zip(f.params, f.values) if p.owner == "closure"}
 
 
-def _unexplained(obs: Observed, pred: np.ndarray, heldout: np.ndarray) -> list:
-    """Channels whose held-out residuals stay beyond the noise: RMS > 1.5 sigma or |bias| > 1 sigma."""
-    z = (pred - obs.y) / obs.sigma[:, None, :]
+def _unexplained(residuals: dict) -> list:
+    """Channels whose held-out residuals (``residual_report``) stay beyond the noise: RMS > 1.5 sigma or |bias| > 1 sigma."""
     out = []
-    for e, name in enumerate(obs.run_names):
-        for c, ch in enumerate(CHANNELS):
-            v = z[e, heldout[e], c]
-            v = v[np.isfinite(v)]
-            if len(v) and (np.sqrt((v**2).mean()) > 1.5 or abs(v.mean()) > 1.0):
-                out.append({"run": name, "channel": ch, "rms_sigma": float(np.sqrt((v**2).mean())),
-                            "bias_sigma": float(v.mean())})
+    for run, chans in residuals["runs"].items():
+        for ch, stats in chans.items():
+            h = stats["heldout"]
+            if h and (h["rms_sigma"] > 1.5 or abs(h["bias_sigma"]) > 1.0):
+                out.append({"run": run, "channel": ch, "rms_sigma": h["rms_sigma"], "bias_sigma": h["bias_sigma"]})
     return out
 
 
