@@ -160,6 +160,9 @@ def cmd_diagnose(args) -> int:
         c = d.ranking[0]
         print(f"cause: {d.cause} {d.extended['params']} (held-out gain {c.heldout_gain:.2f}, "
               f"95 % CI [{c.heldout_gain_ci[0]:.2f}, {c.heldout_gain_ci[1]:.2f}], dBIC {c.delta_bic:.1f})")
+        if d.alternatives:
+            print(f"not ruled out (also clear every threshold, dBIC within {d.thresholds.alternative_bic:g}): "
+                  + ", ".join(d.alternatives))
     else:
         print("cause: none (no candidate clears the evidence thresholds)")
     print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "

@@ -70,6 +70,8 @@ class Fluxes(NamedTuple):
     Q_li_W: Tensor
     Q_wv_W: Tensor
     Q_wl_W: Tensor
+    A_wv_m2: Tensor
+    A_wl_m2: Tensor
     J_evap_kg_s: Tensor
     h_v_J_per_kg: Tensor
     h_l_J_per_kg: Tensor
@@ -140,7 +142,7 @@ class TankModel(nn.Module):
         J = (Q_vi + Q_li) / (pv.h_vsat - pv.h_lsat)
         f = Fluxes(
             p_v_Pa=p, T_v_K=pv.T, T_l_K=pl.T, T_sat_K=T_sat, H_l_m=H_l, theta_W_m2K=theta,
-            Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, J_evap_kg_s=J,
+            Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, A_wv_m2=A_wv, A_wl_m2=A_wl, J_evap_kg_s=J,
             h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
             h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
         )
@@ -152,11 +154,14 @@ class TankModel(nn.Module):
             forcing = m.adjust_forcing(forcing)
         return forcing
 
-    def extra_heat_W(self, s: Tensor):
-        """Mechanisms' heat into (vapour, liquid, wall), W, each broadcastable to ``(env,)``."""
+    def extra_heat_W(self, s: Tensor, forcing: Forcing, fluxes: Fluxes):
+        """Mechanisms' heat into (vapour, liquid, wall), W, each broadcastable to ``(env,)``.
+
+        ``forcing`` is the applied forcing and ``fluxes`` the baseline's flows at ``s``.
+        """
         q_v = q_l = q_w = 0.0
         for m in self.mechanisms:
-            a, b, c = m.heat_W(s)
+            a, b, c = m.heat_W(s, forcing, fluxes)
             q_v, q_l, q_w = q_v + a, q_l + b, q_w + c
         return q_v, q_l, q_w
 
@@ -176,7 +181,7 @@ class TankModel(nn.Module):
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
         fc = self.applied_forcing(forcing)
         f, pv, pl = self.fluxes(s, fc)
-        q_v, q_l, q_w = self.extra_heat_W(s)
+        q_v, q_l, q_w = self.extra_heat_W(s, fc, f)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
         dm_l = fc.mdot_l_in_kg_s - fc.mdot_l_out_kg_s - J

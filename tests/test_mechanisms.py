@@ -66,6 +66,31 @@ def test_heat_leaks_add_exactly_their_power_to_the_energy():
         assert (mass - mass[0]).abs().max() / mass[0] < 1e-9
 
 
+def test_dry_wall_heating_moves_the_dry_walls_share_of_the_ambient_heat_into_the_vapour():
+    model0, s0, geom = _tank()
+    model, _, _ = _tank([make_mechanism("dry_wall_heating", phi=0.6)])
+    f = Forcing.rest(1, Q_aw_W=500.0)
+    t0 = torch.tensor(0.0)
+    d0, d = model0(t0, s0, f), model(t0, s0, f)
+    A_wl, A_wv = geom.wetted_areas_m2(geom.level_at_volume(s0[:, 6]))
+    q = 0.6 * 500.0 * A_wv / (A_wl + A_wv)  # (1,) W
+    assert 50.0 < float(q) < 250.0  # 40 % of the wall is dry at 60 % fill
+
+    def vapour_heat_in(ds):  # d(m_v u_v)/dt + p dV_v/dt: the vapour's heat and enthalpy inflow (W)
+        p = model0.observe(s0)[:, 0]
+        return ds[:, 0] * s0[:, 2] + s0[:, 0] * ds[:, 2] + p * ds[:, 5]
+
+    assert torch.allclose(CW * (d[:, 4] - d0[:, 4]), -q, rtol=1e-12)
+    assert torch.allclose(vapour_heat_in(d) - vapour_heat_in(d0), q, rtol=1e-9)
+    # an internal redistribution: the total energy still gains exactly Q_aw
+    t, s = _run(model, s0, geom, f)
+    E = model.total_energy_J(s[None])[0]
+    assert torch.allclose(E - E[0], 500.0 * t, rtol=1e-7, atol=1e-2)
+    # and the ullage ends warmer than the baseline's
+    _, sb = _run(model0, s0, geom, f)
+    assert model.observe(s[-1:])[0, 1] > model0.observe(sb[-1:])[0, 1] + 0.1
+
+
 def test_closed_tank_stays_conservative_with_stratification_and_wall_capacity_error():
     model, s0, geom = _tank([make_mechanism("thermal_stratification", dT_K=0.8),
                              make_mechanism("wall_heat_capacity_error", eps=0.5)])

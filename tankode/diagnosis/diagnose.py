@@ -66,6 +66,10 @@ class Thresholds:
             per measured channel) that the mechanism removes, at least this. A mechanism that
             shaves 8 % off a misfit of 25 sigma (a model the data contradict everywhere) does
             not explain it; one that brings the prediction to the noise explains all of it.
+        alternative_bic: another candidate that also clears every threshold with a dBIC within
+            this of the cause's is reported as an alternative the data do not rule out (10:
+            below "very strong" evidence for one over the other). It does not change the
+            decision; it tells the engineer which measurement would separate the two.
     """
 
     delta_bic: float = -10.0
@@ -74,6 +78,7 @@ class Thresholds:
     z_score: float = 3.0
     explained: float = 0.5
     stability: float = 0.25
+    alternative_bic: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -167,10 +172,11 @@ class Diagnosis:
     heldout: np.ndarray = None
     baseline_pred: np.ndarray = None
     extended_pred: np.ndarray | None = None
+    alternatives: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {
-            "cause": self.cause, "ranking": [c.to_json() for c in self.ranking], "baseline": self.baseline,
+            "cause": self.cause, "alternatives": self.alternatives, "ranking": [c.to_json() for c in self.ranking], "baseline": self.baseline,
             "extended": self.extended, "split": self.split, "runs": list(self.runs), "unexplained": self.unexplained,
             "wall_time_s": self.wall_time_s, "n_simulations": self.n_simulations,
             "thresholds": asdict(self.thresholds),
@@ -273,6 +279,8 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 f"({problem.n_simulations} simulations, {time.perf_counter() - start:.0f} s so far)")
         ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
         cause = ranking[0].mechanism if ranking and ranking[0].passes else None
+        alternatives = [c.mechanism for c in ranking[1:] if cause is not None and c.passes
+                        and c.delta_bic - ranking[0].delta_bic < config.thresholds.alternative_bic]
 
         extended_fit = ext_pred = extended = None
         if cause is not None:
@@ -301,7 +309,7 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
     return Diagnosis(
         cause, ranking, baseline, extended, folds.description, obs.run_names, unexplained,
         time.perf_counter() - start, problem.n_simulations, config.thresholds, problem, base, extended_fit,
-        folds.heldout, base_pred, ext_pred,
+        folds.heldout, base_pred, ext_pred, alternatives,
     )
 
 

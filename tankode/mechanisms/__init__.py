@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 from .base import Mechanism, Param
+from .dry_wall import DryWallHeating
 from .heat_leaks import HeatLeakLiquid, HeatLeakVapor, HeatLeakWall
 from .leaks import LiquidLeak, VaporLeak
 from .noncondensable import NoncondensableGas
@@ -16,7 +17,7 @@ from .wall_capacity import WallHeatCapacityError
 MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
-              WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias)
+              WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating)
 }
 
 
@@ -45,5 +46,5 @@ def mechanisms_from_spec(spec) -> list[Mechanism]:
 __all__ = [
     "MECHANISMS", "Mechanism", "Param", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
-    "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias",
+    "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
 ]

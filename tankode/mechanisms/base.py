@@ -8,7 +8,8 @@ nested hypothesis (what the score test, the likelihood ratio and BIC of the diag
 It acts through hooks of ``TankModel``, each a no-op by default:
 
 * ``adjust_forcing``: change the operations actually applied (unmetered leaks, meter bias);
-* ``heat_W``: extra heat into the vapour, the liquid and the wall (W);
+* ``heat_W``: extra heat into the vapour, the liquid and the wall (W), which may depend on the
+  state, the applied forcing and the baseline's flows (a redistribution sums to 0);
 * ``interface_offset_K``: a liquid surface temperature above the bulk's at the interface;
 * ``wall_capacity_factor``: multiply m_w c_w;
 * ``pressure_offset_Pa``: what the pressure sensor reads beyond the hydrogen's own pressure
@@ -124,8 +125,12 @@ class Mechanism(nn.Module):
         """The operations actually applied, given the metered ones."""
         return forcing
 
-    def heat_W(self, s: Tensor) -> tuple[Tensor | float, Tensor | float, Tensor | float]:
-        """Extra heat (W) into (vapour, liquid, wall) at state ``s`` ``(env, 7)``."""
+    def heat_W(self, s: Tensor, forcing: Forcing, fluxes) -> tuple[Tensor | float, Tensor | float, Tensor | float]:
+        """Extra heat (W) into (vapour, liquid, wall) at state ``s`` ``(env, 7)``.
+
+        ``forcing`` is the applied forcing and ``fluxes`` the baseline's ``tankode.model.Fluxes``
+        at ``s`` (heat flows, wetted areas), for mechanisms that redistribute them.
+        """
         return 0.0, 0.0, 0.0
 
     def interface_offset_K(self) -> Tensor | float:
