@@ -23,7 +23,7 @@ KNOWN_FAILURES = {
     ("small_selfpress", None): "names noncondensable_gas (38 mol, stable on held-out data: 36 mol): the other "
                                "simulator's liquid superheats 0.7 K at rest, which tankode's model family can only "
                                "reproduce with a lower hydrogen partial pressure",
-    ("small_selfpress", "heat_leak_vapor"): "names heat_leak_vapor but estimates 26.5 W for 50 W (the closure "
+    ("small_selfpress", "heat_leak_vapor"): "names heat_leak_vapor but estimates 32.8 W for 50 W (the closure "
                                             "multipliers take part of it)",
     ("sphere_vent", "heat_leak_wall"): "names heat_leak_liquid (194 W) over heat_leak_wall: the other simulator's "
                                        "wall is tied to its liquid (h_wl ~ 200 W/m2K), their signatures differ by "
