@@ -72,9 +72,21 @@ def _calibrate_on(runs, mechanism, max_iterations):
     """Closure factors (+ ``mechanism``'s parameters) fitted to all of ``runs``; returns (closure, mechanisms, fit)."""
     problem = Problem(Fleet.from_runs(runs))
     params = closure_params() + (mechanism_params(mechanism) if mechanism else [])
-    f = fit(problem, params, np.zeros(len(params)), np.ones((1, len(problem.obs.t_s)), bool), max_iterations)
+    every_sample = np.ones(problem.obs.y.shape[:2], bool)  # (env, T)
+    f = fit(problem, params, np.zeros(len(params)), every_sample, max_iterations)
     closure, mechs = problem.build(f.params, f.values)
     return closure, mechs, f
+
+
+def _leave_one_out(runs, held, mechanism, max_iterations):
+    """Calibrate on every run but ``held``, predict ``held`` from its metadata and inputs; returns (solution, fit)."""
+    closure, mechs, f = _calibrate_on([r for r in runs if r is not held], mechanism, max_iterations)
+    return _predict(held, closure, mechs), f
+
+
+def _values(f):
+    """A fit's parameter values by label."""
+    return {p.label: float(v) for p, v in zip(f.params, f.values)}
 
 
 def _misfit_summary(run, rmse):
@@ -120,31 +132,27 @@ def main(argv=None) -> dict:
         rm[r.name]["tankode_extended"] = channel_rmse(r, solution_observations(extended[r.name]), CHANNELS)
 
     # 3b. the best-evidenced candidate even when it is not named: how far it takes the fit
-    best_id = best.mechanism if best is not None and best.refit else None
-    best_loo = {}
-    if best_id is not None and best_id != d.cause:
-        closure, mechs, f = _calibrate_on(runs, best_id, config.max_iterations)
-        best_values = {p.label: float(v) for p, v in zip(f.params, f.values)}
+    best_not_named = None
+    if best is not None and best.refit and best.mechanism != d.cause:
+        closure, mechs, f = _calibrate_on(runs, best.mechanism, config.max_iterations)
+        best_not_named = {"mechanism": best.mechanism, "values_calibrated_on_both": _values(f),
+                          "values_leave_one_out": {}}
         for r in runs:
             rm[r.name]["tankode_best_candidate"] = channel_rmse(r, solution_observations(_predict(r, closure, mechs)),
                                                                 CHANNELS)
-        for held in runs:
-            closure, mechs, f = _calibrate_on([r for r in runs if r is not held], best_id, config.max_iterations)
-            rm[held.name]["tankode_best_candidate_leave_one_out"] = channel_rmse(
-                held, solution_observations(_predict(held, closure, mechs)), CHANNELS)
-            best_loo[held.name] = {p.label: float(v) for p, v in zip(f.params, f.values)}
-        print(f"best candidate {best_id} (not named): calibrated on both {best_values}; leave one out {best_loo}",
-              flush=True)
+            sol, f = _leave_one_out(runs, r, best.mechanism, config.max_iterations)
+            rm[r.name]["tankode_best_candidate_leave_one_out"] = channel_rmse(r, solution_observations(sol), CHANNELS)
+            best_not_named["values_leave_one_out"][r.name] = _values(f)
+        print(f"best candidate, not named: {best_not_named}", flush=True)
 
     # 4. leave one test out: calibrate on one, predict the other from its metadata and inputs
     loo = {}
     for held in runs:
         (train,) = [r for r in runs if r is not held]
-        closure, mechs, f = _calibrate_on([train], d.cause, config.max_iterations)
-        sol = _predict(held, closure, mechs)
+        sol, f = _leave_one_out(runs, held, d.cause, config.max_iterations)
         rm[held.name]["tankode_leave_one_out"] = channel_rmse(held, solution_observations(sol), CHANNELS)
         loo[held.name] = {"calibrated_on": train.name, "mechanism": d.cause, "fit_status": f.status,
-                          "values": {p.label: float(v) for p, v in zip(f.params, f.values)}, "solution": sol,
+                          "values": _values(f), "solution": sol,
                           "p_rmse_Pa": rm[held.name]["tankode_leave_one_out"]["p_v_Pa"]["rmse"],
                           "ebm_p_rmse_Pa": rm[held.name]["ebm"]["p_v_Pa"]["rmse"]}
         loo[held.name]["below_ebm"] = loo[held.name]["p_rmse_Pa"] < loo[held.name]["ebm_p_rmse_Pa"]
@@ -186,8 +194,7 @@ def main(argv=None) -> dict:
                                                          "heldout_gain", "heldout_gain_ci", "explained", "reasons")}},
         "table": {name: {model: {ch: rm[name][model][ch]["rmse"] for ch in CHANNELS} for model in rm[name]}
                   for name in rm},
-        "best_candidate_not_named": None if not best_loo else {"mechanism": best_id, "values_calibrated_on_both": best_values,
-                                                               "values_leave_one_out": best_loo},
+        "best_candidate_not_named": best_not_named,
         "leave_one_out": {k: {kk: vv for kk, vv in v.items() if kk != "solution"} for k, v in loo.items()},
         "leave_one_out_p_below_ebm_on_both": all(v["below_ebm"] for v in loo.values()),
         "cli_predict": cli, "wall_time_s": wall,

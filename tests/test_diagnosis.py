@@ -113,6 +113,20 @@ def test_no_hidden_effect_names_no_cause(case, seed):
     assert not d.unexplained
 
 
+@pytest.mark.slow
+def test_a_close_runner_up_is_reported_as_not_ruled_out():
+    # case 3: heat_leak_vapor explains the hidden dry-wall heating almost as well (dBIC -407 vs -417)
+    from tankode.diagnosis import Thresholds
+    from tankode.diagnosis.report import markdown
+
+    config = DiagnosisConfig(candidates=("dry_wall_heating", "heat_leak_vapor"),
+                             thresholds=Thresholds(alternative_bic=50.0))
+    d = diagnose([_data("case3", "dry_wall_heating", 0.3, 15)], config=config)
+    assert d.cause == "dry_wall_heating" and d.alternatives == ["heat_leak_vapor"]
+    assert d.to_json()["alternatives"] == ["heat_leak_vapor"]
+    assert "Not ruled out: `heat_leak_vapor`" in markdown(d, [])
+
+
 def test_diagnose_writes_report_and_a_model_that_predicts(tmp_path):
     data = _data("case3", "vapor_leak", 1.0e-4, 21)
     d = diagnose([data], config=DiagnosisConfig(candidates=("vapor_leak", "pressure_sensor_bias", "heat_leak_wall")))

@@ -176,8 +176,9 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         return {
-            "cause": self.cause, "alternatives": self.alternatives, "ranking": [c.to_json() for c in self.ranking], "baseline": self.baseline,
-            "extended": self.extended, "split": self.split, "runs": list(self.runs), "unexplained": self.unexplained,
+            "cause": self.cause, "alternatives": self.alternatives, "ranking": [c.to_json() for c in self.ranking],
+            "baseline": self.baseline, "extended": self.extended, "split": self.split, "runs": list(self.runs),
+            "unexplained": self.unexplained,
             "wall_time_s": self.wall_time_s, "n_simulations": self.n_simulations,
             "thresholds": asdict(self.thresholds),
         }
@@ -279,8 +280,8 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 f"({problem.n_simulations} simulations, {time.perf_counter() - start:.0f} s so far)")
         ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
         cause = ranking[0].mechanism if ranking and ranking[0].passes else None
-        alternatives = [c.mechanism for c in ranking[1:] if cause is not None and c.passes
-                        and c.delta_bic - ranking[0].delta_bic < config.thresholds.alternative_bic]
+        alternatives = [c.mechanism for c in ranking[1:] if c.passes
+                        and c.delta_bic - ranking[0].delta_bic < config.thresholds.alternative_bic] if cause else []
 
         extended_fit = ext_pred = extended = None
         if cause is not None:

@@ -72,9 +72,9 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
                  f"{100 * c.heldout_gain:.0f} % (95 % interval {100 * c.heldout_gain_ci[0]:.0f} to "
                  f"{100 * c.heldout_gain_ci[1]:.0f} %), dBIC {c.delta_bic:.1f}.")
         if d.alternatives:
-            by_id = {a.mechanism: a for a in d.ranking}
+            alts = [a for a in d.ranking if a.mechanism in d.alternatives]
             L.append("Not ruled out: " + ", ".join(
-                f"`{a}` (dBIC {by_id[a].delta_bic:.1f}, held-out gain {by_id[a].heldout_gain:.2f})" for a in d.alternatives)
+                f"`{a.mechanism}` (dBIC {a.delta_bic:.1f}, held-out gain {a.heldout_gain:.2f})" for a in alts)
                 + f" also clears every threshold, within {d.thresholds.alternative_bic:g} of the cause's dBIC: "
                 "the data favour the cause but do not exclude these; a measurement that tells them apart "
                 "(see each mechanism's signature) would settle it.")
