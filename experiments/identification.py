@@ -24,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
 from tankode.cases import get_case  # noqa: E402
+from tankode.closures import INPUT_SETS, MLPClosure, MLPConfig  # noqa: E402
 from tankode.noise import noise_std  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
@@ -47,6 +48,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", default="results/identification")
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
     ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
+                    help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -58,7 +61,7 @@ def main(argv=None) -> dict:
         run = run.until(QUICK_DURATION_S)
     truth = simulate(run)
     (data,) = solution_to_runs(run, truth, noise=NOISE, seed=SEED)
-    assimilator = Assimilator([data], config)
+    assimilator = Assimilator([data], config, closure=MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=SEED)))
     snapshots = []  # the agent after each window: what the real-time loop knows at that time
 
     def on_window(r):
@@ -81,7 +84,8 @@ def main(argv=None) -> dict:
     online = _online_identification(snapshots, assimilator.windows, run, truth, sloshing)
 
     summary = {
-        "case": CASE, "noise": NOISE, "config": json.loads(config.to_json()), "train_wall_s": train_s,
+        "case": CASE, "noise": NOISE, "config": json.loads(config.to_json()), "inputs": args.inputs,
+        "train_wall_s": train_s,
         "windows": [{"index": r.index, "J_before": r.cost_before, "J_after": r.cost_after, "evals": r.n_evals,
                      "iters": r.n_iters, "wall_s": r.wall_s, "note": r.note} for r in result.reports],
         "rmse_vs_clean_truth": rmse, "rmse_over_noise_std": rmse_over_std,

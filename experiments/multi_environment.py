@@ -29,7 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from tankode.cases import get_case  # noqa: E402
-from tankode.closures import ReferenceClosure  # noqa: E402
+from tankode.closures import INPUT_SETS, MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
@@ -62,15 +62,19 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="one short window, 2 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/multi_environment")
     ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
+    ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
+                    help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start)
+    config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start,
+                                 prior_weight=args.prior_weight)
     (validation,) = _data([VALIDATION], args.quick)
 
     agents, table = {}, {}
     for name, cases in AGENTS.items():
-        init = None if name == "A1" else copy.deepcopy(agents["A1"])
+        init = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=SEED)) if name == "A1" else copy.deepcopy(agents["A1"])
         start = time.perf_counter()
         res = Assimilator(_data(cases, args.quick), config, closure=init).run(
             logdir=out / "tensorboard" / name,
@@ -85,7 +89,8 @@ def main(argv=None) -> dict:
     table["reference_closure"] = {"J_case5": validation_cost(ReferenceClosure(), [validation])["J"],
                                   "note": "the synthetic truth itself: the noise floor"}
     js = [table[n]["J_case5"] for n in AGENTS]
-    summary = {"validation": VALIDATION, "noise": NOISE, "config": json.loads(config.to_json()), "table": table,
+    summary = {"validation": VALIDATION, "noise": NOISE, "config": json.loads(config.to_json()), "inputs": args.inputs,
+               "table": table,
                "loss_falls_as_environments_are_added": all(b < a for a, b in zip(js, js[1:]))}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     _figure(out, validation, agents)

@@ -14,7 +14,7 @@ import torch
 
 from typing import NamedTuple
 
-from .closures import ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation, ScaledClosure
+from .closures import FEATURE_NAMES, ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation, ScaledClosure
 from .mechanisms import Mechanism, mechanisms_from_spec, mechanisms_spec
 
 FORMAT = "tankode-model-1"
@@ -32,6 +32,7 @@ def closure_spec(closure) -> dict:
     """JSON description of a closure (type and configuration, not the weights)."""
     if isinstance(closure, MLPClosure):
         cfg = asdict(closure.config)
+        cfg["features"] = list(cfg["features"])
         cfg["hidden"] = list(cfg["hidden"])
         cfg["h_ref_W_m2K"] = list(cfg["h_ref_W_m2K"])
         return {"type": "MLPClosure", "config": cfg}
@@ -49,6 +50,8 @@ def closure_from_spec(spec: dict):
     kind = spec.get("type")
     if kind == "MLPClosure":
         cfg = dict(spec["config"])
+        # Models saved before the feature set became configurable used the default eight inputs.
+        cfg["features"] = tuple(cfg.get("features", FEATURE_NAMES))
         cfg["hidden"] = tuple(cfg["hidden"])
         cfg["h_ref_W_m2K"] = tuple(cfg["h_ref_W_m2K"])
         return MLPClosure(MLPConfig(**cfg))

@@ -1,12 +1,15 @@
 """Closures: the reference correlation's limits and the MLP agent's guarantees."""
 
+import json
 import math
 
 import pytest
 import torch
 
 from tankode.analytic import AnalyticFluid
-from tankode.closures import ClosureInputs, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation
+from tankode.closures import (EXTENDED_FEATURES, FEATURE_NAMES, ClosureInputs, MLPClosure, MLPConfig, ReferenceClosure,
+                              ReferenceCorrelation, mlp_features)
+from tankode.closures.mlp import WAVE_DAMPING
 from tankode.closures.reference import XI_11, first_slosh_frequency_Hz, wave_height_m
 
 R = 0.9
@@ -74,9 +77,12 @@ def test_sloshing_raises_interface_coefficients_in_the_expected_range():
     assert 5.0 < slosh[1].item() < 300.0
 
 
-def test_mlp_has_484_weights_and_starts_at_h_ref():
+def test_mlp_has_484_weights_500_with_the_extended_inputs_and_starts_at_h_ref():
+    extended = MLPClosure(MLPConfig(features=EXTENDED_FEATURES))
+    assert sum(p.numel() for p in extended.parameters()) == 9 * 16 + 16 + 16 * 16 + 16 + 16 * 4 + 4 == 500
     cfg = MLPConfig()
     mlp = MLPClosure(cfg)
+    assert len(cfg.features) == 8
     assert sum(p.numel() for p in mlp.parameters()) == 484
     h = mlp(_inputs(A0=0.01, f=0.6, n=3))
     assert torch.allclose(h, torch.tensor(cfg.h_ref_W_m2K, dtype=torch.float64).expand(3, 4), rtol=1e-14)
@@ -114,3 +120,53 @@ def test_mlp_config_validation():
         MLPConfig(h_ref_W_m2K=(1.0, -1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="span"):
         MLPConfig(span=0.0)
+
+
+def test_wave_reynolds_feature_is_zero_at_rest_and_follows_the_linear_wave():
+    def wave(**kw):
+        x = _inputs(**kw)
+        return x, mlp_features(x, ("lnRe_wave",))[0, 0].item()
+
+    assert wave(A0=0.0, f=0.0)[1] == 0.0
+    f11 = first_slosh_frequency_Hz(torch.tensor(R), torch.tensor(1.4)).item()
+    x, value = wave(A0=0.01, f=0.8 * f11)
+    b = wave_height_m(x.slosh_amplitude_m, x.slosh_frequency_Hz, x.radius_m, x.H_l_m, WAVE_DAMPING)
+    re_b = (2 * math.pi * 0.8 * f11 * b * R / (x.liquid.mu / x.rho_l_kg_m3)).item()
+    assert value == pytest.approx(math.log1p(re_b / 1e4) / 5, rel=1e-12)
+    # The same forcing amplitude closer to resonance raises a larger wave, which Re = f A_0 R / nu cannot tell.
+    assert wave(A0=0.01, f=0.95 * f11)[1] > wave(A0=0.01, f=0.8 * f11)[1] + 0.1
+
+
+def test_liquid_interface_grashof_feature_has_the_sign_of_the_stratification():
+    def feature(T_l):
+        x = _inputs(T_l=T_l)
+        return float(x.T_l_K - x.T_sat_K), mlp_features(x, ("lnGr_li_signed", "lnGr_vl"))[0]
+
+    T_sat = float(_inputs().T_sat_K)  # set by the vapour alone
+    d_stable, (stable, vl_stable) = feature(T_sat - 1.0)
+    d_unstable, (unstable, vl_unstable) = feature(T_sat + 1.0)
+    assert d_stable == pytest.approx(-1.0, abs=0.05) and d_unstable == pytest.approx(1.0, abs=0.05)
+    assert stable.item() < -0.3 and unstable.item() > 0.3  # |ln Gr| / 30 ~ 0.8 at a kelvin
+    # the paper's vapour-liquid feature does not see on which side of T_sat the liquid is
+    assert vl_stable.item() > 0 and vl_unstable.item() > 0
+
+
+def test_models_saved_before_the_feature_set_was_configurable_still_load(tmp_path):
+    from tankode.saved import load_model, save_model
+
+    old = MLPClosure(MLPConfig(seed=2))
+    path = save_model(tmp_path / "m", old, "ParaHydrogen")
+    meta = json.loads((path / "model.json").read_text())
+    del meta["closure"]["config"]["features"]  # as written before the feature set was configurable
+    (path / "model.json").write_text(json.dumps(meta))
+    loaded = load_model(path).closure
+    assert loaded.config.features == FEATURE_NAMES
+    x = _inputs(A0=0.01, f=0.6, n=2)
+    assert torch.equal(loaded(x), old(x))
+
+
+def test_mlp_rejects_unknown_or_repeated_features():
+    with pytest.raises(ValueError, match="lnGr_li_signed"):
+        MLPConfig(features=("Pr_v", "Pr_v"))
+    with pytest.raises(ValueError, match="features"):
+        MLPConfig(features=("Nu",))

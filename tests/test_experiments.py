@@ -93,3 +93,13 @@ def test_mhtb_quick(tmp_path):
     assert (tmp_path / "diagnosis" / "model" / "model.json").exists()
     for name in ("mhtb_P263968K.png", "mhtb_P263981D.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_closure_inputs_quick(tmp_path):
+    _run("closure_inputs.py", tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert len(summary["rows"]) == 4 * 3
+    # The validation case is never among the training cases.
+    assert all("case5" not in r["trained_on"] for r in summary["rows"])
+    assert summary["J_reference_closure"] == pytest.approx(2.5, rel=0.3)
+    assert (tmp_path / "summary.md").read_text().startswith("# Supervised fit")

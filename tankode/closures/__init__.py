@@ -1,7 +1,7 @@
 """Closures theta = g(s; w) for the four heat transfer coefficients."""
 
 from .base import THETA_NAMES, Closure, ClosureInputs, ConstantClosure
-from .mlp import FEATURE_NAMES, MLPClosure, MLPConfig, mlp_features
+from .mlp import EXTENDED_FEATURES, FEATURE_NAMES, INPUT_SETS, MLPClosure, MLPConfig, mlp_features
 from .scaled import ScaledClosure
 from .reference import ReferenceClosure, ReferenceCorrelation, first_slosh_frequency_Hz, wave_height_m
 
@@ -10,6 +10,8 @@ __all__ = [
     "ClosureInputs",
     "ConstantClosure",
     "FEATURE_NAMES",
+    "EXTENDED_FEATURES",
+    "INPUT_SETS",
     "MLPClosure",
     "MLPConfig",
     "mlp_features",
