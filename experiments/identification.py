@@ -48,20 +48,21 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", default="results/identification")
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
     ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--seed", type=int, default=SEED, help="noise draw and weight initialisation seed")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
-    config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start)
+    config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start, seed=args.seed)
 
     run = get_case(CASE)
     if args.quick:
         run = run.until(QUICK_DURATION_S)
     truth = simulate(run)
-    (data,) = solution_to_runs(run, truth, noise=NOISE, seed=SEED)
-    assimilator = Assimilator([data], config, closure=MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=SEED)))
+    (data,) = solution_to_runs(run, truth, noise=NOISE, seed=args.seed)
+    assimilator = Assimilator([data], config, closure=MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed)))
     snapshots = []  # the agent after each window: what the real-time loop knows at that time
 
     def on_window(r):
