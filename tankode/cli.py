@@ -85,6 +85,12 @@ def cmd_assimilate(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
+    if args.inputs is not None and args.init is not None:
+        raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
+    if args.inputs is not None:
+        from .closures import INPUT_SETS, MLPClosure, MLPConfig
+
+        closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
     if args.init is not None:
         closure, mechanisms, _ = load_model(args.init)
         if not any(p.requires_grad for p in closure.parameters()):
@@ -215,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
     a.add_argument("--init", "--model", dest="init", default=None,
                    help="start from this model directory (its closure, and its mechanisms kept fixed)")
+    a.add_argument("--inputs", choices=("default", "extended"), default=None,
+                   help="input features of a fresh agent (tankode/closures/mlp.py): default = the paper's eight, "
+                        "extended = nine (not with --init, whose closure fixes them)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
     a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
     a.add_argument("--quiet", action="store_true", help="no progress bar")

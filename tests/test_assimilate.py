@@ -121,6 +121,13 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
     again = _cli("assimilate", *args, "--out", str(tmp_path / "k"))
     out_again, _ = again.communicate(timeout=600)
     assert again.returncode == 2 and b"--resume" in out_again  # refuses to silently restart
+    # ...and to resume into an agent with other inputs, or to mix --inputs with --init.
+    other = _cli("assimilate", *args, "--out", str(tmp_path / "k"), "--resume", "--inputs", "extended")
+    out_other, _ = other.communicate(timeout=600)
+    assert other.returncode == 2 and b"another agent" in out_other, out_other.decode()
+    both = _cli("assimilate", *args, "--out", str(tmp_path / "b"), "--inputs", "extended", "--init", str(tmp_path / "ref"))
+    out_both, _ = both.communicate(timeout=600)
+    assert both.returncode == 2 and b"--init" in out_both, out_both.decode()
     resumed = _cli("assimilate", *args, "--out", str(tmp_path / "k"), "--resume")
     out_res, _ = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, out_res.decode()

@@ -170,3 +170,21 @@ def test_mlp_rejects_unknown_or_repeated_features():
         MLPConfig(features=("Pr_v", "Pr_v"))
     with pytest.raises(ValueError, match="features"):
         MLPConfig(features=("Nu",))
+
+
+def test_supervised_fit_recovers_coefficients_an_mlp_can_represent():
+    from trainers.supervised import fit_supervised, log_error
+
+    torch.manual_seed(0)
+    features = torch.rand(200, 8, dtype=torch.float64)
+    teacher = MLPClosure(MLPConfig(seed=5))
+    with torch.no_grad():
+        teacher.net[-1].weight.normal_(0, 0.3)  # a non-trivial target inside the output range
+        theta = torch.exp(teacher.log_h_ref + teacher.config.span * torch.tanh(teacher.net(features)))
+    student = MLPClosure(MLPConfig(seed=1))
+    assert log_error(student, features, theta).mean() > 0.1
+    mse = fit_supervised(student, features, theta, weight_decay=0.0, max_iter=500)
+    assert mse < 1e-4
+    assert log_error(student, features, theta).max() < 0.05
+    with pytest.raises(ValueError, match="columns"):
+        fit_supervised(student, features[:, :7], theta, weight_decay=0.0, max_iter=1)

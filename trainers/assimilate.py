@@ -349,6 +349,10 @@ class Assimilator:
         if ck["config"] != self.config.to_json():
             raise ValueError("checkpoint was written with another configuration:\n"
                              f"  checkpoint: {ck['config']}\n  now:        {self.config.to_json()}")
+        now = json.dumps(asdict(self.closure.config))
+        if ck["mlp_config"] != now:
+            raise ValueError("checkpoint was written for another agent (MLP configuration):\n"
+                             f"  checkpoint: {ck['mlp_config']}\n  now:        {now}")
         names = [r.name for r in self.fleet.runs]
         if list(ck["runs"]) != names:
             raise ValueError(f"checkpoint is for runs {list(ck['runs'])}, not {names}")
