@@ -48,13 +48,13 @@ QUICK_DURATION_S = 300.0
 # -----------------------------------------------------------------------------------------------
 
 
-def _data(names, quick):
+def _data(names, quick, seed):
     runs = []
     for n in names:
         run = get_case(n)
         runs.append(run.until(QUICK_DURATION_S) if quick else run)
     # Independent noise per environment (seed + environment index inside solution_to_runs).
-    return solution_to_runs(runs, simulate(runs), noise=NOISE, seed=SEED + 10 * int(names[0][-1]))
+    return solution_to_runs(runs, simulate(runs), noise=NOISE, seed=seed + 10 * int(names[0][-1]))
 
 
 def main(argv=None) -> dict:
@@ -62,6 +62,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="one short window, 2 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/multi_environment")
     ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--seed", type=int, default=SEED, help="noise draws, weight initialisation and batch draws")
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
@@ -69,14 +70,14 @@ def main(argv=None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start,
-                                 prior_weight=args.prior_weight)
-    (validation,) = _data([VALIDATION], args.quick)
+                                 prior_weight=args.prior_weight, seed=args.seed)
+    (validation,) = _data([VALIDATION], args.quick, args.seed)
 
     agents, table = {}, {}
     for name, cases in AGENTS.items():
-        init = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=SEED)) if name == "A1" else copy.deepcopy(agents["A1"])
+        init = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed)) if name == "A1" else copy.deepcopy(agents["A1"])
         start = time.perf_counter()
-        res = Assimilator(_data(cases, args.quick), config, closure=init).run(
+        res = Assimilator(_data(cases, args.quick, args.seed), config, closure=init).run(
             logdir=out / "tensorboard" / name,
             on_window=lambda r, n=name: print(f"{n} window {r.index}: J {r.cost_before:.3g} -> {r.cost_after:.3g} "
                                               f"({r.wall_s:.0f} s) {r.note}", flush=True))
