@@ -75,9 +75,9 @@ def main(argv=None) -> dict:
                        "case5_ln_h_vi_err": float(err[:, 0].mean()), "J_case5": J}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
+        J_reference = validation_cost(ReferenceClosure(), [val.data])["J"]
     summary = {"validation": VALIDATION, "noise": NOISE, "weight_decay": WEIGHT_DECAY, "max_iter": max_iter,
-               "quick": args.quick, "J_reference_closure": validation_cost(ReferenceClosure(), [val.data])["J"],
-               "rows": rows}
+               "quick": args.quick, "J_reference_closure": J_reference, "rows": rows}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "summary.md").write_text(_table(summary))
     print(_table(summary))

@@ -62,7 +62,8 @@ def main(argv=None) -> dict:
         run = run.until(QUICK_DURATION_S)
     truth = simulate(run)
     (data,) = solution_to_runs(run, truth, noise=NOISE, seed=args.seed)
-    assimilator = Assimilator([data], config, closure=MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed)))
+    agent0 = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
+    assimilator = Assimilator([data], config, closure=agent0)
     snapshots = []  # the agent after each window: what the real-time loop knows at that time
 
     def on_window(r):

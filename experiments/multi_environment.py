@@ -75,7 +75,10 @@ def main(argv=None) -> dict:
 
     agents, table = {}, {}
     for name, cases in AGENTS.items():
-        init = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed)) if name == "A1" else copy.deepcopy(agents["A1"])
+        if name == "A1":
+            init = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
+        else:
+            init = copy.deepcopy(agents["A1"])
         start = time.perf_counter()
         res = Assimilator(_data(cases, args.quick, args.seed), config, closure=init).run(
             logdir=out / "tensorboard" / name,

@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from .closures import INPUT_SETS  # already loaded by the package's __init__
+
 
 def _load_case_or_run(spec: str):
     from .cases import CASES, get_case
@@ -88,7 +90,7 @@ def cmd_assimilate(args) -> int:
     if args.inputs is not None and args.init is not None:
         raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
     if args.inputs is not None:
-        from .closures import INPUT_SETS, MLPClosure, MLPConfig
+        from .closures import MLPClosure, MLPConfig
 
         closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
     if args.init is not None:
@@ -221,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
     a.add_argument("--init", "--model", dest="init", default=None,
                    help="start from this model directory (its closure, and its mechanisms kept fixed)")
-    a.add_argument("--inputs", choices=("default", "extended"), default=None,
+    a.add_argument("--inputs", choices=tuple(INPUT_SETS), default=None,
                    help="input features of a fresh agent (tankode/closures/mlp.py): default = the paper's eight, "
                         "extended = nine (not with --init, whose closure fixes them)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")

@@ -180,7 +180,7 @@ def test_supervised_fit_recovers_coefficients_an_mlp_can_represent():
     teacher = MLPClosure(MLPConfig(seed=5))
     with torch.no_grad():
         teacher.net[-1].weight.normal_(0, 0.3)  # a non-trivial target inside the output range
-        theta = torch.exp(teacher.log_h_ref + teacher.config.span * torch.tanh(teacher.net(features)))
+        theta = torch.exp(teacher.log_theta(features))
     student = MLPClosure(MLPConfig(seed=1))
     assert log_error(student, features, theta).mean() > 0.1
     mse = fit_supervised(student, features, theta, weight_decay=0.0, max_iter=500)

@@ -330,12 +330,16 @@ class Assimilator:
             writer.close()
         return result
 
+    def _agent_json(self) -> str:
+        """The agent's configuration as checkpoints record it (and resume compares it)."""
+        return json.dumps(asdict(self.closure.config))
+
     def _payload(self, k: int, s_next: Tensor, opt_state: dict, result: AssimilationResult) -> dict:
         return {
             "format": "tankode-assimilation-checkpoint-1",
             "next_window": k + 1,
             "config": self.config.to_json(),
-            "mlp_config": json.dumps(asdict(self.closure.config)),
+            "mlp_config": self._agent_json(),
             "runs": [r.name for r in self.fleet.runs],
             "weights": {n: p.detach().clone() for n, p in self.closure.state_dict().items()},
             "optimizer": opt_state,
@@ -349,7 +353,7 @@ class Assimilator:
         if ck["config"] != self.config.to_json():
             raise ValueError("checkpoint was written with another configuration:\n"
                              f"  checkpoint: {ck['config']}\n  now:        {self.config.to_json()}")
-        now = json.dumps(asdict(self.closure.config))
+        now = self._agent_json()
         if ck["mlp_config"] != now:
             raise ValueError("checkpoint was written for another agent (MLP configuration):\n"
                              f"  checkpoint: {ck['mlp_config']}\n  now:        {now}")

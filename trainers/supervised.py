@@ -67,29 +67,24 @@ def fit_supervised(closure: MLPClosure, features: Tensor, theta_W_m2K: Tensor, *
                          f"{len(closure.config.features)} ({closure.config.features})")
     params = list(closure.net.parameters())
     target = torch.log(theta_W_m2K)
-
-    def predict():
-        return closure.log_h_ref + closure.config.span * torch.tanh(closure.net(features))
-
     opt = torch.optim.LBFGS(params, max_iter=max_iter, line_search_fn="strong_wolfe", tolerance_grad=1e-12,
                             tolerance_change=1e-14)
 
     def objective():
         opt.zero_grad()
-        loss = (predict() - target).pow(2).mean() + weight_decay * sum(p.pow(2).sum() for p in params)
+        loss = (closure.log_theta(features) - target).pow(2).mean() + weight_decay * sum(p.pow(2).sum() for p in params)
         loss.backward()
         return loss
 
     opt.step(objective)
     with torch.no_grad():
-        return float((predict() - target).pow(2).mean())
+        return float((closure.log_theta(features) - target).pow(2).mean())
 
 
 def log_error(closure: MLPClosure, features: Tensor, theta_W_m2K: Tensor) -> Tensor:
     """``|ln theta_closure - ln theta_ref|`` ``(N, 4)``."""
     with torch.no_grad():
-        pred = closure.log_h_ref + closure.config.span * torch.tanh(closure.net(features))
-        return (pred - torch.log(theta_W_m2K)).abs()
+        return (closure.log_theta(features) - torch.log(theta_W_m2K)).abs()
 
 
 __all__ = ["reference_samples", "fit_supervised", "log_error"]

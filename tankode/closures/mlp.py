@@ -184,9 +184,12 @@ class MLPClosure(Closure):
         self.net = nn.Sequential(*layers)
         self.register_buffer("log_h_ref", torch.log(torch.tensor(config.h_ref_W_m2K, dtype=torch.float64)))
 
+    def log_theta(self, features: Tensor) -> Tensor:
+        """``ln theta`` ``(..., 4)`` from scaled features ``(..., len(config.features))``."""
+        return self.log_h_ref + self.config.span * torch.tanh(self.net(features))
+
     def forward(self, x: ClosureInputs) -> Tensor:
-        out = self.net(mlp_features(x, self.config.features))
-        return torch.exp(self.log_h_ref + self.config.span * torch.tanh(out))
+        return torch.exp(self.log_theta(mlp_features(x, self.config.features)))
 
 
 __all__ = ["MLPClosure", "MLPConfig", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]
