@@ -41,7 +41,8 @@ def closure_spec(closure) -> dict:
     if isinstance(closure, ConstantClosure):
         return {"type": "ConstantClosure", "theta_W_m2K": closure.theta.tolist()}
     if isinstance(closure, ScaledClosure):
-        return {"type": "ScaledClosure", "base": closure_spec(closure.base), "factors": closure.factors.tolist()}
+        return {"type": "ScaledClosure", "base": closure_spec(closure.base), "factors": closure.factors.tolist(),
+                "stable_mixing": closure.stable_mixing.tolist()}
     raise TypeError(f"cannot save a closure of type {type(closure).__name__}")
 
 
@@ -60,7 +61,8 @@ def closure_from_spec(spec: dict):
     if kind == "ConstantClosure":
         return ConstantClosure(spec["theta_W_m2K"])
     if kind == "ScaledClosure":
-        return ScaledClosure(closure_from_spec(spec["base"]), spec["factors"])
+        # Models saved before the stable-mixing share existed had none (0).
+        return ScaledClosure(closure_from_spec(spec["base"]), spec["factors"], spec.get("stable_mixing", 0.0))
     raise ValueError(f"unknown closure type {kind!r} (known: MLPClosure, ReferenceClosure, ConstantClosure, "
                      "ScaledClosure)")
 

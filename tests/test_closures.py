@@ -8,7 +8,7 @@ import torch
 
 from tankode.analytic import AnalyticFluid
 from tankode.closures import (EXTENDED_FEATURES, FEATURE_NAMES, ClosureInputs, MLPClosure, MLPConfig, ReferenceClosure,
-                              ReferenceCorrelation, mlp_features)
+                              ReferenceCorrelation, ScaledClosure, mlp_features)
 from tankode.closures.mlp import WAVE_DAMPING
 from tankode.closures.reference import XI_11, first_slosh_frequency_Hz, wave_height_m
 
@@ -51,6 +51,29 @@ def test_reference_natural_convection_only_when_unstable():
     # 1e-3: the switch and |dT| are smoothed over 0.05 K, which shifts Ra^(1/3) by ~2e-4 at dT = 1.4 K.
     assert unstable.item() == pytest.approx(expected.item(), rel=1e-3)
     assert unstable > 10 * stable
+
+
+def test_stable_mixing_adds_the_symmetric_natural_convection_under_a_subcooled_liquid():
+    # Liquid 1.4 K colder than the interface (stable) and 1.4 K warmer (unstable), same |dT|.
+    x_stable = _inputs(T_l=18.0)
+    dT = float(x_stable.T_sat_K) - 18.0
+    x_unstable = _inputs(T_l=float(x_stable.T_sat_K) + dT)
+    f = torch.tensor([1.0, 2.0, 1.0, 1.0], dtype=torch.float64)
+    ref = ReferenceClosure()
+    for c in (0.0, 0.5, 1.0):
+        closure = ScaledClosure(ref, f, stable_mixing=c)
+        h_stable = closure(x_stable)[0]
+        c_ref = ReferenceCorrelation()
+        nu = x_stable.liquid.mu / x_stable.rho_l_kg_m3
+        alpha = x_stable.liquid.k / (x_stable.rho_l_kg_m3 * x_stable.liquid.cp)
+        ra = 9.80665 * x_stable.liquid.beta.abs() * dT * R**3 / (nu * alpha)
+        expected = (c_ref.nu_0 + c * c_ref.c_nat_liquid * ra ** (1 / 3)) * x_stable.liquid.k / R * 2.0
+        assert h_stable[1].item() == pytest.approx(expected.item(), rel=2e-3)  # 2e-3: the 0.05 K smoothing
+        # The other coefficients and the unstable side are untouched (the wall keeps 10 x the reference h_li).
+        assert torch.equal(h_stable[[0, 2, 3]], (ref(x_stable)[0] * f)[[0, 2, 3]])
+        assert torch.allclose(closure(x_unstable), ref(x_unstable) * f, rtol=1e-6)
+    with pytest.raises(ValueError, match=r"stable_mixing must be a share in \[0, 1\]"):
+        ScaledClosure(ref, f, stable_mixing=1.5)
 
 
 def test_wave_height_limits():

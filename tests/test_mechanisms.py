@@ -1,5 +1,6 @@
 """Mechanisms: bounds, absent at 0, conservation with them as external inputs, sensor effects."""
 
+import json
 import math
 
 import numpy as np
@@ -143,11 +144,15 @@ def test_per_environment_values_match_separate_runs():
 
 
 def test_saved_model_round_trips_closure_factors_and_mechanisms(tmp_path):
-    closure = ScaledClosure(ReferenceClosure(), torch.tensor([1.0, 1.5, 0.7, 1.1], dtype=torch.float64))
+    closure = ScaledClosure(ReferenceClosure(), torch.tensor([1.0, 1.5, 0.7, 1.1], dtype=torch.float64), 0.3)
     mechs = [make_mechanism("heat_leak_wall", Q_W=120.0), make_mechanism("pressure_sensor_bias", bias_Pa=-800.0)]
     save_model(tmp_path / "m", closure, "ParaHydrogen", {"x": 1}, mechanisms=mechs)
     c2, m2, meta = load_model(tmp_path / "m")
-    assert torch.equal(c2.factors, closure.factors)
+    assert torch.equal(c2.factors, closure.factors) and float(c2.stable_mixing) == 0.3
+    spec = json.loads((tmp_path / "m" / "model.json").read_text())
+    del spec["closure"]["stable_mixing"]  # a model saved before the share existed
+    (tmp_path / "m" / "model.json").write_text(json.dumps(spec))
+    assert float(load_model(tmp_path / "m")[0].stable_mixing) == 0.0
     assert mechanisms_spec(m2) == mechanisms_spec(mechs)
     assert mechanisms_from_spec(mechanisms_spec(mechs))[0].values_dict() == {"Q_W": 120.0}
     bad = tmp_path / "m" / "model.json"

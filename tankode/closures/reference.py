@@ -125,4 +125,25 @@ class ReferenceClosure(Closure):
         return torch.stack([h_vi, h_li, c.wall_vapor_factor * h_vi, c.wall_liquid_factor * h_li], dim=-1)
 
 
-__all__ = ["ReferenceClosure", "ReferenceCorrelation", "first_slosh_frequency_Hz", "wave_height_m"]
+def stable_liquid_convection_W_m2K(x: ClosureInputs, correlation: ReferenceCorrelation = ReferenceCorrelation()
+                                   ) -> Tensor:
+    """The liquid-side natural convection the reference switches off under stable stratification, ``(env,)``.
+
+    ``(1 - S_l) c_nat,l Ra_l^(1/3) k_l / R`` in W/(m^2 K): the turbulent natural-convection term
+    of ``h_li`` (module docstring) where the liquid is colder than the interface (heated from
+    above), and 0 where it is warmer. The reference keeps only conduction (the ``Nu_0`` floor)
+    there; many tank energy-balance models apply the same ``|dT|^(1/3)`` law on both sides. The
+    difference is a factor ~30 on ``h_li`` in a subcooled liquid under a pressurised ullage,
+    and ``ScaledClosure(stable_mixing=c)`` spans it: ``h_li += c x`` this term.
+    """
+    c = correlation
+    props, rho, R = x.liquid, x.rho_l_kg_m3, x.radius_m
+    nu = props.mu / rho
+    alpha = props.k / (rho * props.cp)
+    dT = x.T_l_K - x.T_sat_K  # < 0: liquid colder than the interface, stably stratified
+    ra = GRAVITY_M_S2 * props.beta.abs() * _smooth_abs(dT, c.dT_switch_K) * R**3 / (nu * alpha)
+    return (1 - torch.sigmoid(dT / c.dT_switch_K)) * c.c_nat_liquid * ra ** (1 / 3) * props.k / R
+
+
+__all__ = ["ReferenceClosure", "ReferenceCorrelation", "first_slosh_frequency_Hz", "stable_liquid_convection_W_m2K",
+           "wave_height_m"]

@@ -121,7 +121,9 @@ def _jacobian(residual, z: np.ndarray, r: np.ndarray, lo: np.ndarray, hi: np.nda
     h = 1e-3 * np.maximum(1.0, np.abs(z))
     h = np.where(z + h > hi, -h, h)
     Z = np.repeat(z[None], len(z) + 1, axis=0)  # (n + 1, n)
-    Z[1:] += np.diag(h)
+    # A degenerate box (lower == upper) holds a parameter fixed: not perturbed (a zero column,
+    # unused), since either step would leave its physical range (e.g. a share at 0 or 1).
+    Z[1:] += np.diag(np.where(hi > lo, h, 0.0))
     R = residual(Z)  # (n + 1, n_data)
     return ((R[1:] - R[0]) / h[:, None]).T
 

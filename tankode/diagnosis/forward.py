@@ -24,14 +24,16 @@ THETA = ("h_vi", "h_li", "h_wv", "h_wl")
 LOG_FACTOR_BOUND = math.log(10.0)
 # Normalised unit of a log-multiplier (the fit variable is ln(f) / 0.1): a 10 % change.
 LOG_FACTOR_SCALE = 0.1
+# The stable-mixing share (``ScaledClosure``) runs over [0, 1]; its fit unit is a tenth of that.
+MIXING_SCALE = 0.1
 
 
 @dataclass(frozen=True)
 class FreeParam:
-    """One fitted parameter: a closure multiplier (``owner="closure"``) or a mechanism's.
+    """One fitted parameter: of the closure (``owner="closure"``) or of a mechanism.
 
     The fit works on ``z = value / scale`` within ``[lower, upper] / scale``; for closure
-    multipliers ``value`` is ln(factor).
+    multipliers ``value`` is ln(factor), for the closure's ``stable_mixing`` the share itself.
     """
 
     owner: str
@@ -47,9 +49,15 @@ class FreeParam:
 
 
 def closure_params() -> list[FreeParam]:
-    """The four log-multipliers of the closure's coefficients."""
+    """The baseline's degrees of freedom: four log-multipliers of the coefficients and the stable-mixing share.
+
+    The share (``ScaledClosure``) is the one shape freedom: how much heat a liquid colder than
+    the interface takes up, from conduction (0, the reference) to the symmetric natural
+    convection law (1). On another simulator's runs with pressurisation or a cold fill, its
+    absence left the calibrated baseline 20-40 sigma off (experiments/README.md).
+    """
     return [FreeParam("closure", f"ln_{n}_factor", "1", -LOG_FACTOR_BOUND, LOG_FACTOR_BOUND, LOG_FACTOR_SCALE)
-            for n in THETA]
+            for n in THETA] + [FreeParam("closure", "stable_mixing", "1", 0.0, 1.0, MIXING_SCALE)]
 
 
 def mechanism_params(mechanism_id: str) -> list[FreeParam]:
@@ -92,9 +100,12 @@ class Problem:
         V = np.atleast_2d(values)  # (B, n)
         rows = np.repeat(V, self.fleet.n_env, axis=0) if batch else V  # (B * env, n) or (1, n)
         log_f = np.zeros((len(rows), 4))
+        mixing = np.zeros(len(rows))
         mech: dict[str, dict[str, np.ndarray]] = {}
         for j, p in enumerate(params):
-            if p.owner == "closure":
+            if p.owner == "closure" and p.name == "stable_mixing":
+                mixing = rows[:, j]
+            elif p.owner == "closure":
                 log_f[:, THETA.index(p.name[3:-7])] = rows[:, j]
             else:
                 mech.setdefault(p.owner, {})[p.name] = rows[:, j]
@@ -105,7 +116,7 @@ class Problem:
             cols = np.stack([vals.get(q.name, np.zeros(len(rows))) for q in m.params], axis=-1)  # (rows, n_params)
             m.set_values(cols if batch else cols[0])
             built.append(m)
-        return ScaledClosure(self.base, factors), self.fixed + tuple(built)
+        return ScaledClosure(self.base, factors, mixing if batch else mixing[0]), self.fixed + tuple(built)
 
     def _fleet(self, copies: int) -> Fleet:
         if copies not in self._fleets:

@@ -111,7 +111,8 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
             continue
         L.append(f"| {ch} | {b:.3g} | {ext[ch]:.3g} |" if ch in ext else f"| {ch} | {b:.3g} | |")
     L += ["", "## What the calibrated baseline gets wrong", "",
-          "Closure factors: " + ", ".join(f"{k} x{v:.3g}" for k, v in d.baseline["closure_factors"].items()) + ".", ""]
+          "Closure factors: " + ", ".join(f"{k} x{v:.3g}" if k.endswith("_factor") else f"{k} {v:.3g}"
+                                           for k, v in d.baseline["closure_factors"].items()) + ".", ""]
     for run, chans in d.baseline["residuals"]["runs"].items():
         L += [f"### {run}", "", "| channel | calibration bias / RMS [sigma] | held-out bias / RMS [sigma] | "
               "Ljung-Box p | worst phase (RMS) | spans outside 3 sigma |", "|---|---|---|---|---|---|"]
