@@ -142,7 +142,7 @@ def _levenberg_marquardt(residual, z0, lo, hi, max_iterations: int):
         jac = _jacobian(residual, z, r, lo, hi)
         g = jac.T @ r  # gradient of chi2 / 2
         # Active set: a variable on a bound whose descent direction leaves the box stays there.
-        free = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0)))
+        free = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0))) & (hi > lo)  # a degenerate box holds it
         if not free.any():
             return z, r, jac, f"converged after {it - 1} iterations (every parameter held at a bound)"
         A = (jac.T @ jac)[np.ix_(free, free)]

@@ -48,16 +48,17 @@ class FreeParam:
         return f"{self.owner}.{self.name}"
 
 
-def closure_params() -> list[FreeParam]:
-    """The baseline's degrees of freedom: four log-multipliers of the coefficients and the stable-mixing share.
+def closure_params(stable_mixing: bool = False) -> list[FreeParam]:
+    """The baseline's degrees of freedom: four log-multipliers of the coefficients (and the stable-mixing share).
 
-    The share (``ScaledClosure``) is the one shape freedom: how much heat a liquid colder than
-    the interface takes up, from conduction (0, the reference) to the symmetric natural
-    convection law (1). On another simulator's runs with pressurisation or a cold fill, its
-    absence left the calibrated baseline 20-40 sigma off (experiments/README.md).
+    The share (``ScaledClosure``, with ``stable_mixing=True``) is a shape freedom: how much heat
+    a liquid colder than the interface takes up, from conduction (0, the reference) to the
+    symmetric natural convection law (1). On another simulator's runs with pressurisation or a
+    cold fill, its absence leaves the calibrated baseline 20-40 sigma off (experiments/README.md).
     """
-    return [FreeParam("closure", f"ln_{n}_factor", "1", -LOG_FACTOR_BOUND, LOG_FACTOR_BOUND, LOG_FACTOR_SCALE)
-            for n in THETA] + [FreeParam("closure", "stable_mixing", "1", 0.0, 1.0, MIXING_SCALE)]
+    multipliers = [FreeParam("closure", f"ln_{n}_factor", "1", -LOG_FACTOR_BOUND, LOG_FACTOR_BOUND, LOG_FACTOR_SCALE)
+                   for n in THETA]
+    return multipliers + ([FreeParam("closure", "stable_mixing", "1", 0.0, 1.0, MIXING_SCALE)] if stable_mixing else [])
 
 
 def mechanism_params(mechanism_id: str) -> list[FreeParam]:
