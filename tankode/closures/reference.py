@@ -95,6 +95,14 @@ def _smooth_abs(x: Tensor, eps: float) -> Tensor:
     return torch.sqrt(x * x + eps * eps)
 
 
+def _convection_groups(props, rho: Tensor, dT_unstable: Tensor, R: Tensor, c: ReferenceCorrelation):
+    """``(nu, alpha, Ra, S)`` of one side of the interface; ``S`` switches on where ``dT_unstable > 0``."""
+    nu = props.mu / rho
+    alpha = props.k / (rho * props.cp)
+    ra = GRAVITY_M_S2 * props.beta.abs() * _smooth_abs(dT_unstable, c.dT_switch_K) * R**3 / (nu * alpha)
+    return nu, alpha, ra, torch.sigmoid(dT_unstable / c.dT_switch_K)
+
+
 class ReferenceClosure(Closure):
     """The paper's correlations (module docstring) as a closure; no trainable parameters."""
 
@@ -104,11 +112,8 @@ class ReferenceClosure(Closure):
 
     def _side(self, props, rho: Tensor, dT_unstable: Tensor, x: ClosureInputs, velocity: Tensor, c_nat: float) -> Tensor:
         c = self.correlation
-        nu = props.mu / rho
-        alpha = props.k / (rho * props.cp)
         R = x.radius_m
-        ra = GRAVITY_M_S2 * props.beta.abs() * _smooth_abs(dT_unstable, c.dT_switch_K) * R**3 / (nu * alpha)
-        switch = torch.sigmoid(dT_unstable / c.dT_switch_K)
+        nu, alpha, ra, switch = _convection_groups(props, rho, dT_unstable, R, c)
         re = velocity * R / nu / c.re_ref
         pr = nu / alpha
         # (re + tiny)^m keeps the derivative finite at rest (re = 0) where x^0.8 has a cusp.
@@ -136,13 +141,9 @@ def stable_liquid_convection_W_m2K(x: ClosureInputs, correlation: ReferenceCorre
     difference is a factor ~30 on ``h_li`` in a subcooled liquid under a pressurised ullage,
     and ``ScaledClosure(stable_mixing=c)`` spans it: ``h_li += c x`` this term.
     """
-    c = correlation
-    props, rho, R = x.liquid, x.rho_l_kg_m3, x.radius_m
-    nu = props.mu / rho
-    alpha = props.k / (rho * props.cp)
-    dT = x.T_l_K - x.T_sat_K  # < 0: liquid colder than the interface, stably stratified
-    ra = GRAVITY_M_S2 * props.beta.abs() * _smooth_abs(dT, c.dT_switch_K) * R**3 / (nu * alpha)
-    return (1 - torch.sigmoid(dT / c.dT_switch_K)) * c.c_nat_liquid * ra ** (1 / 3) * props.k / R
+    # The same groups as h_li's natural-convection term, with the switch's complement.
+    _, _, ra, switch = _convection_groups(x.liquid, x.rho_l_kg_m3, x.T_l_K - x.T_sat_K, x.radius_m, correlation)
+    return (1 - switch) * correlation.c_nat_liquid * ra ** (1 / 3) * x.liquid.k / x.radius_m
 
 
 __all__ = ["ReferenceClosure", "ReferenceCorrelation", "first_slosh_frequency_Hz", "stable_liquid_convection_W_m2K",

@@ -13,9 +13,9 @@ class ScaledClosure(Closure):
     """``theta = (base(x) + c h_stable(x) e_li) * factors``: calibrate a closure's level, not its shape.
 
     Used by the sensitivity study (one row of multipliers per environment, so perturbed
-    samples run as one batched ODE) and by the diagnosis (four multipliers and one mixing share
-    shared by all environments: a closure with five degrees of freedom, which cannot bend
-    itself in time to mimic a missing mechanism's signature).
+    samples run as one batched ODE) and by the diagnosis (four multipliers, and optionally the
+    mixing share, shared by all environments: a closure with four or five degrees of freedom,
+    which cannot bend itself in time to mimic a missing mechanism's signature).
 
     Args:
         base: the closure to scale (e.g. ``ReferenceClosure()`` or a trained ``MLPClosure``).
@@ -27,8 +27,8 @@ class ScaledClosure(Closure):
             (``stable_liquid_convection_W_m2K``), added to ``h_li`` before its factor. 0 (the
             default) is the base closure unchanged; 1 is the symmetric ``|dT|^(1/3)`` law of
             many tank energy-balance models. Where a subcooled liquid meets a warmer interface
-            (pressurisation, fill with colder liquid), published closures differ by this much,
-            so the diagnosis calibrates it with the multipliers.
+            (pressurisation, fill with colder liquid), published closures differ by this much;
+            ``DiagnosisConfig(stable_mixing=True)`` calibrates it with the multipliers.
 
     Raises:
         ValueError: ``factors`` has the wrong shape or non-finite / negative entries,
@@ -52,6 +52,7 @@ class ScaledClosure(Closure):
         # before it existed must still load.
         self.register_buffer("stable_mixing", c.clone(), persistent=False)
         self._mixing = bool((c > 0).any())  # skip the extra term (and its cost) when it is off
+        self.register_buffer("_e_li", torch.eye(4, dtype=torch.float64)[H_LI], persistent=False)  # (4,)
 
     def forward(self, x: ClosureInputs) -> Tensor:
         theta = self.base(x)  # (env, 4)
@@ -60,7 +61,7 @@ class ScaledClosure(Closure):
                              f"but factors have shape {tuple(self.factors.shape)} (one row per environment)")
         if self._mixing:
             extra = self.stable_mixing * stable_liquid_convection_W_m2K(x)  # (env,)
-            theta = theta + torch.nn.functional.one_hot(torch.tensor(H_LI), 4).to(theta) * extra[..., None]
+            theta = theta + extra[..., None] * self._e_li  # only h_li
         return theta * self.factors
 
 

@@ -252,18 +252,15 @@ def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisCon
     problem = Problem(fleet, base_closure, tuple(fixed_mechanisms))
     folds = _Folds(problem, _split(config, fleet), config)
     params = closure_params(config.stable_mixing)
-    x0 = np.zeros(len(params))
-    if not config.stable_mixing:
-        base, held = folds.run(params, x0, config.max_iterations)
-        return problem, folds, base, held
     # The stable-mixing share has two basins (conduction-like and convection-like heat uptake
     # under a subcooled liquid, traded against h_li's factor). On another simulator's
     # pressurisation run the fit started at 0, and also one started at 1, ended at a share of
     # 0.13 with h_li x 10 (held-out loss 89); the multipliers fitted first with the share held
     # at 1, then all five, end at a share of 1 with h_li x 1.02 (held-out loss 3.5). So: a fit
     # from 0, and that staged fit from 1; the lower chi2 wins.
-    base, held = folds.run(params, x0, config.max_iterations,
-                           staged=((([p.name for p in params].index("stable_mixing")), 1.0),))
+    names = [p.name for p in params]
+    staged = ((names.index("stable_mixing"), 1.0),) if config.stable_mixing else ()
+    base, held = folds.run(params, np.zeros(len(params)), config.max_iterations, staged=staged)
     return problem, folds, base, held
 
 
@@ -415,8 +412,13 @@ def _mech_values(f: Fit, mid: str, std: bool = False) -> dict:
 
 def _factors(f: Fit) -> dict:
     """The closure's calibrated multipliers (``h_vi_factor``, ...) and its ``stable_mixing`` share."""
-    return {(p.name[3:] if p.name.startswith("ln_") else p.name): float(np.exp(v) if p.name.startswith("ln_") else v)
-            for p, v in zip(f.params, f.values) if p.owner == "closure"}
+    out = {}
+    for p, v in zip(f.params, f.values):
+        if p.owner == "closure" and p.name.startswith("ln_"):
+            out[p.name[3:]] = float(np.exp(v))
+        elif p.owner == "closure":
+            out[p.name] = float(v)
+    return out
 
 
 def _unexplained(residuals: dict) -> list:
