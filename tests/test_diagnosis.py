@@ -127,6 +127,40 @@ def test_a_close_runner_up_is_reported_as_not_ruled_out():
     assert "Not ruled out: `heat_leak_vapor`" in markdown(d, [])
 
 
+@pytest.mark.slow
+def test_calibration_recovers_a_known_stable_mixing_share():
+    # Data made with half of the symmetric natural-convection law under the stably stratified
+    # liquid (case 1's subcooled liquid sits under a saturated interface all hour): the opt-in
+    # fifth closure freedom must find the share and leave the four multipliers near 1.
+    from tankode.closures import ReferenceClosure, ScaledClosure
+    from tankode.diagnosis import calibrate
+    from tankode.diagnosis.diagnose import _factors
+
+    run = get_case("case1")
+    truth = ScaledClosure(ReferenceClosure(), [1.0, 1.0, 1.0, 1.0], stable_mixing=0.5)
+    (data,) = solution_to_runs(run, simulate(run, truth), noise="low", seed=16)
+    _, _, base, _ = calibrate([data], config=DiagnosisConfig(stable_mixing=True))
+    found = _factors(base)
+    assert found["stable_mixing"] == pytest.approx(0.5, abs=0.1), found
+    # h_li trades against the share; the others are fixed by other phases of the run
+    assert found["h_li_factor"] == pytest.approx(1.0, rel=0.3), found
+    # Without the share the four multipliers alone leave a misfit far above the noise.
+    _, _, base4, _ = calibrate([data])
+    assert base4.chi2 > 2.0 * base.chi2, (base4.chi2, base.chi2)
+
+
+@pytest.mark.slow
+def test_a_staged_start_that_leaves_the_property_domain_is_dropped_and_reported():
+    # Case 4's liquid is 9 K subcooled under a 33 K ullage at 5 bar: with the share held at 1 the
+    # condensation heats it out of the surrogate's domain. That start is dropped, not fatal.
+    from tankode.diagnosis import calibrate
+
+    _, folds, base, _ = calibrate([_data("case4", None, 0.0, 13)], config=DiagnosisConfig(stable_mixing=True))
+    assert folds.failed_starts and "stable_mixing = 1" in folds.failed_starts[0], folds.failed_starts
+    assert "property surrogate's fitted domain" in folds.failed_starts[0]
+    assert np.isfinite(base.chi2) and base.chi2 < 2.0 * base.n_data  # the start from 0 fits case 4
+
+
 def test_diagnose_writes_report_and_a_model_that_predicts(tmp_path):
     data = _data("case3", "vapor_leak", 1.0e-4, 21)
     d = diagnose([data], config=DiagnosisConfig(candidates=("vapor_leak", "pressure_sensor_bias", "heat_leak_wall")))

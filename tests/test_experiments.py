@@ -83,11 +83,19 @@ def test_mhtb_quick(tmp_path):
     for test, models in summary["table"].items():
         assert {"tankode_baseline", "tankode_calibrated", "tankode_extended", "tankode_leave_one_out",
                 "ebm"} <= set(models)
-        for model, rmse in models.items():
-            assert set(rmse) == {"p_v_Pa", "T_v_K", "T_l_K"}, (test, model)
-            assert all(v >= 0 for v in rmse.values())
+        for model, spans in models.items():
+            assert set(spans) == {"ebm_span", "all"}
+            for rmse in spans.values():
+                assert set(rmse) == {"p_v_Pa", "T_v_K", "T_l_K"}, (test, model)
+                assert all(v >= 0 for v in rmse.values())
+    # The EBM's published pressure of P263981D stops at 1.35 h: the comparison leaves the
+    # later samples out for every model, and says how many it used.
+    p = summary["samples"]["P263981D"]["ebm_span"]["p_v_Pa"]
+    assert p["n_outside"] > 0 and p["t_end_s"] < 4900.0
+    assert summary["leave_one_out"]["P263981D"]["p_samples"] == p["n"]
     rows = (tmp_path / "table.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * 5 * 3
+    # one row per test, model, span (EBM's samples, all samples) and channel
+    assert len(rows) == 1 + sum(len(models) for models in summary["table"].values()) * 2 * 3
     assert set(summary["leave_one_out"]) == {"P263968K", "P263981D"}
     assert all(v["ok"] for v in summary["cli_predict"].values())
     assert (tmp_path / "diagnosis" / "model" / "model.json").exists()

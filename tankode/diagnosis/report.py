@@ -113,6 +113,8 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     L += ["", "## What the calibrated baseline gets wrong", "",
           "Closure factors: " + ", ".join(f"{k} x{v:.3g}" if k.endswith("_factor") else f"{k} {v:.3g}"
                                            for k, v in d.baseline["closure_factors"].items()) + ".", ""]
+    dropped = d.baseline.get("failed_starts", [])
+    L += [f"Calibration start dropped: {line}." for line in dropped] + ([""] if dropped else [])
     for run, chans in d.baseline["residuals"]["runs"].items():
         L += [f"### {run}", "", "| channel | calibration bias / RMS [sigma] | held-out bias / RMS [sigma] | "
               "Ljung-Box p | worst phase (RMS) | spans outside 3 sigma |", "|---|---|---|---|---|---|"]
