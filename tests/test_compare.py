@@ -11,17 +11,14 @@ from tankode.compare import channel_rmse
 from tankode.run import Observations
 
 
-def _measured(t_s, p_Pa):
-    values = np.full((len(t_s), 5), np.nan)
-    values[:, 0] = p_Pa
-    obs = Observations(np.asarray(t_s, float), values)
-    return get_case("case1").replace(observations=obs, noise_std={"p_v": 300.0})
-
-
 def _prediction(t_s, p_Pa):
     values = np.full((len(t_s), 5), np.nan)
     values[:, 0] = p_Pa
     return Observations(np.asarray(t_s, float), values)
+
+
+def _measured(t_s, p_Pa):
+    return get_case("case1").replace(observations=_prediction(t_s, p_Pa), noise_std={"p_v": 300.0})
 
 
 def test_rmse_and_bias_of_a_linear_error_interpolated_to_the_samples():

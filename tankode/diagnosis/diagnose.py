@@ -243,8 +243,7 @@ class _Folds:
                     first = fit(self.problem, held, np.where(np.arange(len(params)) == i, v, x0), train, it)
                     fits.append(fit(self.problem, params, first.values, train, it))
                 except SimulationError as e:
-                    self.failed_starts.append(f"start with {params[i].name} = {v:g} dropped: "
-                                              f"{str(e).splitlines()[0]}")
+                    self.failed_starts.append(f"{params[i].name} = {v:g}: {' '.join(str(e).split())}")
             return min(fits, key=lambda f: f.chi2)
 
         fold_fits = [best(train) for train, _ in self.folds]
@@ -297,7 +296,7 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         candidates = [c for c in config.candidates if c not in {m.id for m in problem.fixed}]
         say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
         for line in folds.failed_starts:
-            say(line)
+            say(f"calibration start dropped: {line}")
         base_terms = heldout_terms(obs, base_held, folds.heldout, config.block_s)
         base_loss, base_by = loss_from_terms(*base_terms)
         scores = sorted(score_tests(problem, base, candidates, folds.evidence_mask), key=lambda s: -s.statistic)
