@@ -82,8 +82,10 @@ def cmd_assimilate(args) -> int:
     from .saved import load_model, save_model
 
     runs = [read_run(p) for p in args.runs]
+    from trainers.memory import Forget, LaplaceMemory
+
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
-                                seed=args.seed)
+                                seed=args.seed, memory=LaplaceMemory() if args.memory == "laplace" else Forget())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -221,6 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
     a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
+    a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
+                   help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
+                        "(a prior on the coefficients they determined; trainers/memory.py)")
     a.add_argument("--init", "--model", dest="init", default=None,
                    help="start from this model directory (its closure, and its mechanisms kept fixed)")
     a.add_argument("--inputs", choices=tuple(INPUT_SETS), default=None,

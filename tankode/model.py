@@ -112,27 +112,33 @@ class TankModel(nn.Module):
             raise ValueError(f"wall_heat_capacity_J_per_K must be positive and finite, got {cw}")
         self.register_buffer("wall_heat_capacity_J_per_K", cw)
 
-    def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:
-        """All heat and mass flows at state ``s`` ``(env, 7)``; also the two phases' properties."""
+    def closure_inputs(self, s: Tensor, forcing: Forcing) -> ClosureInputs:
+        """What the closure sees at state ``s`` ``(env, 7)`` under the applied ``forcing``."""
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
         rho_v = m_v / V_v
         rho_l = m_l / V_l
         pv = self.fluid.vapor(u_v, rho_v)
         pl = self.fluid.liquid(u_l, rho_l)
-        p = pv.p
         g = self.geometry
         H_l = g.level_at_volume(V_l)
+        return ClosureInputs(
+            T_v_K=pv.T, T_l_K=pl.T, T_w_K=T_w, T_sat_K=pv.T_sat, rho_v_kg_m3=rho_v, rho_l_kg_m3=rho_l,
+            vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),
+            aspect_ratio=g.aspect_ratio.expand_as(H_l),
+            slosh_amplitude_m=forcing.slosh_amplitude_m, slosh_frequency_Hz=forcing.slosh_frequency_Hz,
+        )
+
+    def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:
+        """All heat and mass flows at state ``s`` ``(env, 7)``; also the two phases' properties."""
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        x = self.closure_inputs(s, forcing)
+        pv, pl, H_l, T_sat = x.vapor, x.liquid, x.H_l_m, x.T_sat_K
+        rho_v, rho_l = x.rho_v_kg_m3, x.rho_l_kg_m3
+        p = pv.p
+        g = self.geometry
         A_i = g.interface_area_m2(H_l)
         A_wl, A_wv = g.wetted_areas_m2(H_l)
-        T_sat = pv.T_sat
-        theta = self.closure(
-            ClosureInputs(
-                T_v_K=pv.T, T_l_K=pl.T, T_w_K=T_w, T_sat_K=T_sat, rho_v_kg_m3=rho_v, rho_l_kg_m3=rho_l,
-                vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),
-                aspect_ratio=g.aspect_ratio.expand_as(H_l),
-                slosh_amplitude_m=forcing.slosh_amplitude_m, slosh_frequency_Hz=forcing.slosh_frequency_Hz,
-            )
-        )
+        theta = self.closure(x)
         h_vi, h_li, h_wv, h_wl = theta.unbind(-1)
         dT_surface = sum((m.interface_offset_K() for m in self.mechanisms), 0.0)
         Q_vi = h_vi * A_i * (pv.T - T_sat)

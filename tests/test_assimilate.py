@@ -169,3 +169,54 @@ def test_fixed_window_start_takes_measured_channels_from_the_data():
     assert abs(float(got[4] - true_obs[4])) < 2e-4
     with pytest.raises(ValueError, match="window_start"):
         AssimilationConfig(window_start="truth")
+
+
+def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():
+    """The remembered Gauss-Newton Hessian is the curvature of the window's cost in ln h, and the
+    prior is exactly 1/2 d^T H d (scaled by the windows' length ratio) for a constant shift d."""
+    from tankode.closures import ConstantClosure, ScaledClosure
+    from trainers.assimilate import Assimilator
+    from trainers.memory import LaplaceMemory, Prior, remember
+
+    run = _short_run(120.0)
+    agent = ScaledClosure(ConstantClosure([50.0, 200.0, 500.0, 1000.0]), torch.ones(4, dtype=torch.float64))
+    (data,) = solution_to_runs(run, simulate(run, agent), noise="clean")  # the agent's own prediction
+    a = Assimilator([data], AssimilationConfig(window_s=120.0, memory=LaplaceMemory()), closure=agent)
+    window = Window.from_runs(a.fleet.runs, 0.0, 120.0)
+    t_eval = torch.cat([window.t_s, torch.tensor([120.0], dtype=torch.float64)]).unique()
+    idx = torch.searchsorted(t_eval, window.t_s)
+
+    def J():
+        with torch.no_grad():
+            return float(cost(a.model.observe(a.predict(a.s0, 0.0, t_eval, NoGradient())[:, idx]), window))
+
+    states = a.predict(a.s0, 0.0, t_eval, NoGradient())
+    mem = remember(a, a.s0, 0.0, t_eval, idx, window, states, 120.0)
+    H = mem.hessian[0].numpy()
+    assert np.allclose(H, H.T) and np.linalg.eigvalsh(H).min() > -1e-9 * np.abs(H).max()
+    J0 = J()
+    prior = Prior(a, [mem])
+    for lf in (np.array([0.0, 0.0, 0.0, 0.05]), np.array([0.0, 0.05, -0.05, 0.0]), np.array([0.02, 0.04, 0.03, -0.02])):
+        quad = 0.5 * lf @ H @ lf
+        assert quad > 10 * J0  # the curvature, not the solver's residual, is measured
+        sides = []
+        for sign in (1.0, -1.0):
+            agent.factors.copy_(torch.as_tensor(np.exp(sign * lf)))
+            sides.append(J())
+        agent.factors.copy_(torch.as_tensor(np.exp(lf)))
+        assert float(prior(120.0)) == pytest.approx(quad, rel=1e-9)
+        assert float(prior(60.0)) == pytest.approx(2 * quad, rel=1e-9)  # window 60 s long: twice the weight
+        agent.factors.fill_(1.0)
+        assert 0.5 * (sides[0] + sides[1]) - J0 == pytest.approx(quad, rel=0.05)
+    assert float(prior(120.0)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_laplace_memory_config():
+    from trainers.memory import LaplaceMemory
+
+    cfg = AssimilationConfig(memory=LaplaceMemory())
+    assert AssimilationConfig.from_json(cfg.to_json()) == cfg
+    with pytest.raises(ValueError, match="mode='fixed'"):
+        AssimilationConfig(mode="growing", memory=LaplaceMemory())
+    with pytest.raises(ValueError, match="memory must be"):
+        AssimilationConfig(memory="laplace")

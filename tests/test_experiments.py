@@ -111,3 +111,19 @@ def test_closure_inputs_quick(tmp_path):
     assert all("case5" not in r["trained_on"] for r in summary["rows"])
     assert summary["J_reference_closure"] == pytest.approx(2.5, rel=0.3)
     assert (tmp_path / "summary.md").read_text().startswith("# Supervised fit")
+
+
+def test_information_quick(tmp_path):
+    """Two windows of case 1: accumulated information can only tighten the bound, and the sloshing
+    window alone cannot separate h_li from h_wv (the identification target's limit)."""
+    _run("information.py", tmp_path)
+    rows = json.loads((tmp_path / "summary.json").read_text())["noise"]["high"]
+    assert [r["window"] for r in rows] == [0, 1]
+    for r in rows:
+        for h in ("h_vi", "h_li", "h_wv", "h_wl"):
+            assert r["std_ln_h_cumulative"][h] <= r["std_ln_h_window"][h] * (1 + 1e-9)
+            assert r["std_ln_h_alone"][h] <= r["std_ln_h_window"][h] * (1 + 1e-9)
+    slosh = rows[1]
+    assert slosh["sloshing_share"] == 1.0
+    assert slosh["corr_li_wv_window"] < -0.9
+    assert slosh["std_ln_h_window"]["h_li"] > 0.3 > slosh["std_ln_h_cumulative"]["h_li"]

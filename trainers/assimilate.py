@@ -48,8 +48,10 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
 from .evaluate import theta_along
 from .lbfgs import BoundedLBFGS, MiniBatch, ResetHistory, uniform_box
+from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop}
+_MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,10 @@ class AssimilationConfig:
         window_start: "data" or "model": where a fixed window's initial state comes from
             (module docstring).
         gradient: ``Adjoint()`` (default; memory independent of the step count) or ``Backprop()``.
+        memory: what a fixed window's update keeps of the earlier windows: ``Forget()`` (the
+            paper: nothing) or ``LaplaceMemory()`` (a Laplace prior on the coefficients the
+            earlier windows determined; ``trainers/memory.py``). Fixed mode only: growing
+            windows refit all the data anyway.
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
@@ -93,6 +99,7 @@ class AssimilationConfig:
     prior_weight: float = 0.0
     window_start: str = "model"
     gradient: Adjoint | Backprop = Adjoint()
+    memory: Forget | LaplaceMemory = Forget()
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 20_000
@@ -114,16 +121,22 @@ class AssimilationConfig:
             raise ValueError(f"weight_bound must be > 0, got {self.weight_bound}")
         if not isinstance(self.gradient, (Adjoint, Backprop)):
             raise ValueError(f"gradient must be Adjoint() or Backprop(), got {self.gradient!r}")
+        if not isinstance(self.memory, (Forget, LaplaceMemory)):
+            raise ValueError(f"memory must be Forget() or LaplaceMemory(), got {self.memory!r}")
+        if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
+            raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
     def to_json(self) -> str:
         d = asdict(self)
         d["gradient"] = type(self.gradient).__name__
+        d["memory"] = type(self.memory).__name__
         return json.dumps(d, sort_keys=True)
 
     @staticmethod
     def from_json(text: str) -> "AssimilationConfig":
         d = json.loads(text)
         d["gradient"] = _GRADIENTS[d["gradient"]]()
+        d["memory"] = _MEMORIES[d.get("memory", "Forget")]()
         return AssimilationConfig(**d)
 
 
@@ -195,6 +208,7 @@ class Assimilator:
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3)
         self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
+        self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
 
     # -- forward pieces ------------------------------------------------------------------------
 
@@ -242,6 +256,9 @@ class Assimilator:
         start = time.perf_counter()
 
         anchor = [p.detach().clone() for p in self.closure.parameters()]
+        remembering = isinstance(cfg.memory, LaplaceMemory)
+        prior = Prior(self, self.memories) if remembering and self.memories else None
+        duration_s = t1 - t_data0
 
         def loss(mask=None):
             states = self.predict(s_start, t_start, t_eval, cfg.gradient)
@@ -249,6 +266,8 @@ class Assimilator:
             J = cost(pred, window, mask)
             if cfg.prior_weight > 0:
                 J = J + 0.5 * cfg.prior_weight * _mean_square_change(self.closure.parameters(), anchor)
+            if prior is not None:
+                J = J + prior(duration_s)
             return J
 
         batch = None
@@ -285,6 +304,8 @@ class Assimilator:
             terms = cost_terms(pred, window)
             after = float(terms.sum() / window.n_env)
             theta = theta_along(self.model, self.fleet, t_eval, states)
+        if remembering and len(window) > 0:
+            self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
                               n_evals, n_iters, time.perf_counter() - start, note)
         return report, states[:, -1].detach().clone(), opt.state_dict()
@@ -345,6 +366,7 @@ class Assimilator:
             "optimizer": opt_state,
             "s_next": s_next,
             "reports": [json.dumps(asdict(r)) for r in result.reports],
+            "memories": [m.to_payload() for m in self.memories],
         }
 
     def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
@@ -362,6 +384,7 @@ class Assimilator:
             raise ValueError(f"checkpoint is for runs {list(ck['runs'])}, not {names}")
         self.closure.load_state_dict(ck["weights"])
         result.reports.extend(WindowReport(**json.loads(r)) for r in ck["reports"])
+        self.memories = [WindowMemory.from_payload(m) for m in ck.get("memories", [])]
         return int(ck["next_window"]), ck["s_next"]
 
 
