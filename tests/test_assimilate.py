@@ -220,3 +220,30 @@ def test_laplace_memory_config():
         AssimilationConfig(mode="growing", memory=LaplaceMemory())
     with pytest.raises(ValueError, match="memory must be"):
         AssimilationConfig(memory="laplace")
+
+
+def test_laplace_memory_survives_an_interruption(tmp_path):
+    """The remembered windows are part of the checkpoint: an interrupted run resumes to the same weights."""
+    from tankode.closures import MLPClosure, MLPConfig
+    from trainers.assimilate import Assimilator
+    from trainers.memory import LaplaceMemory
+
+    data = _data(_short_run(180.0), noise="high", seed=3)
+    cfg = AssimilationConfig(window_s=60.0, iters=2, memory=LaplaceMemory())
+    whole = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run()
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_two(report):
+        if report.index == 1:
+            raise Stop
+
+    ck = tmp_path / "ck.pt"
+    with pytest.raises(Stop):
+        Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run(checkpoint=ck, on_window=stop_after_two)
+    resumed = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1)))
+    result = resumed.run(checkpoint=ck, resume=True)
+    assert len(resumed.memories) == 3
+    for a, b in zip(whole.closure.parameters(), result.closure.parameters()):
+        assert torch.equal(a, b)
