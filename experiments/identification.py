@@ -30,7 +30,7 @@ from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
 from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
-from trainers.memory import Forget, LaplaceMemory  # noqa: E402
+from trainers.memory import MEMORIES  # noqa: E402
 from trainers.evaluate import closure_along, identification_error, rmse_by_channel  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
@@ -52,14 +52,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=SEED, help="noise draw and weight initialisation seed")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
-    ap.add_argument("--memory", choices=("forget", "laplace"), default="forget",
+    ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
     config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start, seed=args.seed,
-                                 memory=LaplaceMemory() if args.memory == "laplace" else Forget())
+                                 memory=MEMORIES[args.memory]())
 
     run = get_case(CASE)
     if args.quick:

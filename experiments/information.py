@@ -59,10 +59,11 @@ def _bounds(noise: str, run, truth) -> list[dict]:
         # samples per channel times J's (all five channels sampled together in the synthetic runs).
         fisher = H * len(window)
         cumulative = cumulative + fisher
-        one = np.sqrt(np.diag(np.linalg.pinv(fisher)))
+        cov = np.linalg.pinv(fisher)
+        one = np.sqrt(np.diag(cov))
         acc = np.sqrt(np.diag(np.linalg.pinv(cumulative)))
         alone = 1.0 / np.sqrt(np.diag(fisher))
-        corr = np.linalg.pinv(fisher)[1, 2] / (one[1] * one[2])
+        corr = cov[1, 2] / (one[1] * one[2])
         rows.append({"window": k, "t0_min": t0 / 60, "t1_min": t1 / 60,
                      "sloshing_share": float((run.inputs.at(np.linspace(t0, t1, 121))[:, 7] > 0).mean()),
                      "std_ln_h_window": dict(zip(NAMES, one.tolist())),

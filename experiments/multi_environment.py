@@ -35,7 +35,7 @@ from tankode.simulate import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
 from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
 from trainers.evaluate import validation_cost  # noqa: E402
-from trainers.memory import Forget, LaplaceMemory  # noqa: E402
+from trainers.memory import MEMORIES  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
 NOISE = "high"
@@ -67,14 +67,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
-    ap.add_argument("--memory", choices=("forget", "laplace"), default="forget",
+    ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start,
                                  prior_weight=args.prior_weight, seed=args.seed,
-                                 memory=LaplaceMemory() if args.memory == "laplace" else Forget())
+                                 memory=MEMORIES[args.memory]())
     (validation,) = _data([VALIDATION], args.quick, args.seed)
 
     agents, table = {}, {}

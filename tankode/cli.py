@@ -77,15 +77,14 @@ def cmd_simulate(args) -> int:
 
 def cmd_assimilate(args) -> int:
     from trainers.assimilate import AssimilationConfig, Assimilator
+    from trainers.memory import MEMORIES
 
     from .run import read_run
     from .saved import load_model, save_model
 
     runs = [read_run(p) for p in args.runs]
-    from trainers.memory import Forget, LaplaceMemory
-
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
-                                seed=args.seed, memory=LaplaceMemory() if args.memory == "laplace" else Forget())
+                                seed=args.seed, memory=MEMORIES[args.memory]())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -223,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
     a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
+    # The names of trainers.memory.MEMORIES, spelled out: the parser does not import the trainers.
     a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")

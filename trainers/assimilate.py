@@ -136,6 +136,7 @@ class AssimilationConfig:
     def from_json(text: str) -> "AssimilationConfig":
         d = json.loads(text)
         d["gradient"] = _GRADIENTS[d["gradient"]]()
+        # Configurations written before the memory option existed trained with Forget().
         d["memory"] = _MEMORIES[d.get("memory", "Forget")]()
         return AssimilationConfig(**d)
 
@@ -212,9 +213,12 @@ class Assimilator:
 
     # -- forward pieces ------------------------------------------------------------------------
 
-    def predict(self, s_start: Tensor, t_start: float, t_eval: Tensor, gradient) -> Tensor:
-        """States ``(env, T, 7)`` at ``t_eval`` integrating from ``s_start`` at ``t_start``."""
-        states, _ = integrate(self.model, s_start, self.fleet.segments(t_start, float(t_eval[-1])), self.fleet.forcing,
+    def predict(self, s_start: Tensor, t_start: float, t_eval: Tensor, gradient, model: TankModel | None = None) -> Tensor:
+        """States ``(env, T, 7)`` at ``t_eval`` integrating from ``s_start`` at ``t_start``.
+
+        ``model``: another right-hand side on the same fleet (e.g. a perturbed closure); the agent's by default.
+        """
+        states, _ = integrate(self.model if model is None else model, s_start, self.fleet.segments(t_start, float(t_eval[-1])), self.fleet.forcing,
                               t_eval, self.scale, self.solver, gradient)
         return states
 

@@ -33,14 +33,20 @@ def validation_cost(closure, runs) -> dict:
     return {"J": float(terms.sum() / len(runs)), "terms": terms.tolist(), "runs": [r.name for r in runs]}
 
 
+def closure_inputs_along(model: TankModel, fleet: Fleet, t_s: torch.Tensor, states: torch.Tensor) -> list:
+    """What the closure sees at each of ``states`` ``(env, T, 7)`` at times ``t_s`` ``(T,)``: T ``ClosureInputs``.
+
+    Detached: the inputs depend on the states and the forcing, not on the closure's weights.
+    """
+    with torch.no_grad():
+        return [model.closure_inputs(states[:, k], model.applied_forcing(fleet.forcing(t, states[:, k])))
+                for k, t in enumerate(t_s.tolist())]
+
+
 def theta_along(model: TankModel, fleet: Fleet, t_s: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
     """Coefficients ``(env, T, 4)`` (W/(m^2 K)) the model's closure gives along ``states`` ``(env, T, 7)``."""
-    out = []
     with torch.no_grad():
-        for k, t in enumerate(t_s.tolist()):
-            f, _, _ = model.fluxes(states[:, k], fleet.forcing(t, states[:, k]))
-            out.append(f.theta_W_m2K)
-    return torch.stack(out, dim=1)
+        return torch.stack([model.closure(x) for x in closure_inputs_along(model, fleet, t_s, states)], dim=1)
 
 
 def closure_along(closure, runs, solution) -> torch.Tensor:
@@ -70,4 +76,4 @@ def identification_error(closure, runs, truth_solution, during) -> dict:
             for i, n in enumerate(names)}
 
 
-__all__ = ["rmse_by_channel", "validation_cost", "theta_along", "closure_along", "identification_error"]
+__all__ = ["rmse_by_channel", "validation_cost", "closure_inputs_along", "theta_along", "closure_along", "identification_error"]

@@ -46,11 +46,11 @@ import torch
 from torch import Tensor
 
 from tankode.closures import ScaledClosure
-from tankode.integrate import integrate
 from tankode.model import TankModel
 from tankode.solver import NoGradient
 
 from .cost import Window
+from .evaluate import closure_inputs_along
 
 # Step of the central differences in ln h: small against the 0.1-1 the data determine, large
 # against the solver's relative tolerance (1e-6) so that the differences are not solver noise.
@@ -87,13 +87,6 @@ class WindowMemory:
         return WindowMemory(d["t_s"], d["states"], d["mean_log_theta"], d["hessian"], float(d["duration_s"]))
 
 
-def _inputs_along(model: TankModel, fleet, t_s: Tensor, states: Tensor) -> list:
-    """The closure's inputs at every stored state, detached (they do not depend on the weights)."""
-    with torch.no_grad():
-        return [model.closure_inputs(states[:, k], model.applied_forcing(fleet.forcing(t, states[:, k])))
-                for k, t in enumerate(t_s.tolist())]
-
-
 def mean_log_theta(closure, inputs: list) -> Tensor:
     """``(env, 4)`` mean over the stored times of ln h, differentiable in the closure's weights."""
     return torch.stack([closure(x).log() for x in inputs], dim=1).mean(1)
@@ -109,7 +102,7 @@ def remember(assimilator, s_start: Tensor, t_start: float, t_eval: Tensor, obs_i
     fleet, base = assimilator.fleet, assimilator.model
     n_env = fleet.n_env
     with torch.no_grad():
-        mlt = mean_log_theta(base.closure, _inputs_along(base, fleet, t_eval, states))
+        mlt = mean_log_theta(base.closure, closure_inputs_along(base, fleet, t_eval, states))
         jac = []
         for j in range(4):
             cols = []
@@ -118,20 +111,15 @@ def remember(assimilator, s_start: Tensor, t_start: float, t_eval: Tensor, obs_i
                 factors[:, j] = float(np.exp(sign * FD_STEP))
                 model = TankModel(fleet.fluid, fleet.geometry, ScaledClosure(base.closure, factors),
                                   fleet.wall_heat_capacity_J_per_K, base.mechanisms)
-                st, _ = _integrate(assimilator, model, s_start, t_start, t_eval)
+                st = assimilator.predict(s_start, t_start, t_eval, NoGradient(), model=model)
                 cols.append(model.observe(st[:, obs_index]))  # (env, T_obs, 5)
             jac.append((cols[0] - cols[1]) / (2 * FD_STEP))
         jac = torch.stack(jac, dim=-1)  # (env, T_obs, 5, 4)
         # Gauss-Newton Hessian of J = mean_env sum 1/2 w inv_var e^2 (trainers/cost.py).
+        # Missing samples have weight 0 (trainers/cost.py), so they add no information.
         wv = window.weights * window.inv_var[:, None, :] / n_env  # (env, T_obs, 5)
-        wv = torch.where(torch.isfinite(window.values), wv, torch.zeros_like(wv))
         hessian = torch.einsum("etci,etc,etcj->eij", jac, wv, jac)
     return WindowMemory(t_eval.clone(), states.detach().clone(), mlt, hessian, float(duration_s))
-
-
-def _integrate(assimilator, model, s_start, t_start, t_eval):
-    return integrate(model, s_start, assimilator.fleet.segments(t_start, float(t_eval[-1])), assimilator.fleet.forcing,
-                     t_eval, assimilator.scale, assimilator.solver, NoGradient())
 
 
 class Prior:
@@ -140,7 +128,7 @@ class Prior:
     def __init__(self, assimilator, memories: list[WindowMemory]):
         self.closure = assimilator.closure
         self.memories = memories
-        self.inputs = [_inputs_along(assimilator.model, assimilator.fleet, m.t_s, m.states) for m in memories]
+        self.inputs = [closure_inputs_along(assimilator.model, assimilator.fleet, m.t_s, m.states) for m in memories]
 
     def __call__(self, duration_s: float) -> Tensor:
         total = torch.zeros((), dtype=torch.float64)
@@ -150,4 +138,7 @@ class Prior:
         return total
 
 
-__all__ = ["Forget", "LaplaceMemory", "WindowMemory", "Prior", "remember", "mean_log_theta"]
+# Command-line names of the strategies (``--memory``).
+MEMORIES = {"forget": Forget, "laplace": LaplaceMemory}
+
+__all__ = ["MEMORIES", "Forget", "LaplaceMemory", "WindowMemory", "Prior", "remember", "mean_log_theta"]
