@@ -220,6 +220,8 @@ def test_laplace_memory_config():
         AssimilationConfig(mode="growing", memory=LaplaceMemory())
     with pytest.raises(ValueError, match="memory must be"):
         AssimilationConfig(memory="laplace")
+    with pytest.raises(ValueError, match="memory 'Remember' is not one of"):
+        AssimilationConfig.from_json(cfg.to_json().replace('"LaplaceMemory"', '"Remember"'))
 
 
 def test_laplace_memory_survives_an_interruption(tmp_path):

@@ -135,9 +135,12 @@ class AssimilationConfig:
     @staticmethod
     def from_json(text: str) -> "AssimilationConfig":
         d = json.loads(text)
-        d["gradient"] = _GRADIENTS[d["gradient"]]()
         # Configurations written before the memory option existed trained with Forget().
-        d["memory"] = _MEMORIES[d.get("memory", "Forget")]()
+        d.setdefault("memory", "Forget")
+        for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
+            if d[key] not in known:
+                raise ValueError(f"assimilation configuration: {key} {d[key]!r} is not one of {sorted(known)}")
+            d[key] = known[d[key]]()
         return AssimilationConfig(**d)
 
 
