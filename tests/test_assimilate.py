@@ -249,3 +249,28 @@ def test_laplace_memory_survives_an_interruption(tmp_path):
     assert len(resumed.memories) == 3
     for a, b in zip(whole.closure.parameters(), result.closure.parameters()):
         assert torch.equal(a, b)
+
+
+def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_path):
+    """Per window: J per environment and channel, the four h, gradient norm, evaluations, a figure each."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
+    from trainers.assimilate import Assimilator
+    from trainers.cost import CHANNELS
+
+    runs = [_data(_short_run(120.0, name=n), seed=i) for i, n in enumerate(("tank_a", "tank_b"))]
+    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1),
+                         closure=MLPClosure(MLPConfig(seed=0))).run(logdir=tmp_path)
+    events = EventAccumulator(str(tmp_path), size_guidance={"images": 0, "scalars": 0})
+    events.Reload()
+    scalars, images = set(events.Tags()["scalars"]), set(events.Tags()["images"])
+    expected = {"J/total", "optim/grad_norm", "optim/function_evals", "time/update_s"}
+    expected |= {f"J/{r.name}/{c}" for r in runs for c in CHANNELS}
+    expected |= {f"h/{r.name}/{h}" for r in runs for h in THETA_NAMES}
+    assert expected <= scalars, sorted(expected - scalars)
+    assert images == {f"prediction/{r.name}" for r in runs}
+    # One point per window, and the logged cost is the report's.
+    logged = [e.value for e in events.Scalars("J/total")]
+    assert logged == pytest.approx([r.cost_after for r in result.reports])
+    assert len(events.Images("prediction/tank_b")) == len(result.reports) == 2

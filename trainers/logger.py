@@ -10,6 +10,7 @@ import torch  # noqa: E402
 from torch.utils.tensorboard import SummaryWriter  # noqa: E402
 
 from tankode.closures import THETA_NAMES  # noqa: E402
+from tankode.solver import NoGradient  # noqa: E402
 
 from .cost import CHANNELS  # noqa: E402
 
@@ -41,18 +42,17 @@ class TrainingLogger:
         w.add_scalar("optim/function_evals", report.n_evals, k)
         w.add_scalar("optim/iterations", report.n_iters, k)
         w.add_scalar("time/update_s", report.wall_s, k)
-        for e, name in enumerate(self.env_names):
-            w.add_figure(f"prediction/{name}", self._figure(assimilator, report, e), k)
+        # One simulation of the whole fleet from t0 serves every environment's figure: it is the
+        # logging's dominant cost (an agent fitted to the newest window can be stiff from t0).
+        t = torch.linspace(assimilator.fleet.t0_s, report.t1_s, 121, dtype=torch.float64)  # (121,)
+        with torch.no_grad():
+            obs = assimilator.model.observe(assimilator.predict(assimilator.s0, float(t[0]), t, NoGradient()))
+        for e, name in enumerate(self.env_names):  # obs: (env, 121, 5)
+            w.add_figure(f"prediction/{name}", self._figure(assimilator.fleet.runs[e], t, obs[e], report.t1_s), k)
         w.flush()
 
-    def _figure(self, assimilator, report, e: int):
-        run = assimilator.fleet.runs[e]
-        t0, t1 = assimilator.fleet.t0_s, report.t1_s
-        t = torch.linspace(t0, t1, 121, dtype=torch.float64)
-        with torch.no_grad():
-            from tankode.solver import NoGradient
-
-            obs = assimilator.model.observe(assimilator.predict(assimilator.s0, t0, t, NoGradient()))[e]
+    @staticmethod
+    def _figure(run, t, obs, t1):
         fig, (ax_p, ax_t) = plt.subplots(1, 2, figsize=(9, 3.2))
         tm = t.numpy() / 60
         ax_p.plot(tm, obs[:, 0].numpy() / 1e5, "k-", label="agent (from t0)")
