@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tankode.cli import main
+from tankode.cli import build_parser, main
 from tankode.run import read_run
 
 MHTB = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mhtb"
@@ -64,3 +64,13 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
     assert "missing required key" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["simulate", "case9", "--out", str(tmp_path)])
+
+
+def test_assimilate_memory_names_are_the_trainers_strategies():
+    """The parser spells out the --memory names (it does not import the trainers): they must stay in step."""
+    from trainers.memory import MEMORIES
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["assimilate"]
+    (memory,) = [a for a in sub._actions if a.dest == "memory"]
+    assert set(memory.choices) == set(MEMORIES)
+    assert memory.default in MEMORIES
