@@ -28,9 +28,11 @@ and 44 % with ``Forget()``, and the final agent's pressure RMSE 8.1 and 4.1 sigm
 and 1.4. The windows' costs after the update stay at 3-5 instead of the noise floor (2.5): what
 the earlier windows determined is determined *given the model's own starting state*, which
 carries the earlier agents' errors, so the prior locks in coefficients that compensated a
-drifted state and fights the new data. On the multi-environment study (seed 0, one run) it
-helped instead: the agent trained on case 1 predicts case 5 with J = 3.51 against 49.6, because
-the final agent keeps what every window taught. ``Forget()`` (the paper's) stays the default.
+drifted state and fights the new data. On the multi-environment study (seed 0) the agent
+trained on case 1 predicts case 5 with J = 3.51 against 49.6 (the final agent keeps what every
+window taught), but with seed 1 15.5 against 13.8, and the agents trained on cases 2 + 3 (+ 4)
+stay far off (144.5 and 634 against 383.6 and 5113): no trend with the environments either.
+``Forget()`` (the paper's) stays the default.
 
 Limits: the prior is on window means of ln theta, not on their shape within a window; the
 states ``s_k`` are the model's, not the truth's; the Hessian is the one at the window's end,
