@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ._threads import single_threaded
 from .closures import Closure, ReferenceClosure
 from .fleet import Fleet
 from .integrate import IntegrationStats, SimulationError, integrate, state_scale
@@ -59,6 +60,7 @@ def output_times(fleet: Fleet, dt_s: float | None, t_eval=None) -> Tensor:
     return torch.as_tensor(t[(t >= t0) & (t <= t1)], dtype=torch.float64)
 
 
+@single_threaded()  # small (env, 7) tensors: extra threads only contend (trainers/assimilate.py)
 def simulate(
     runs,
     closure: Closure | None = None,

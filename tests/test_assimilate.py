@@ -274,3 +274,27 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     logged = [e.value for e in events.Scalars("J/total")]
     assert logged == pytest.approx([r.cost_after for r in result.reports])
     assert len(events.Images("prediction/tank_b")) == len(result.reports) == 2
+
+
+def test_assimilation_and_simulation_run_on_one_thread_and_restore_the_count():
+    """Small tensors: extra torch threads only contend (README, speed); the caller's count comes back."""
+    from tankode.closures import MLPClosure, MLPConfig
+    from trainers.assimilate import Assimilator
+
+    seen = []
+
+    class Recording(MLPClosure):
+        def forward(self, x):
+            seen.append(torch.get_num_threads())
+            return super().forward(x)
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        data = _data(_short_run(90.0))
+        Assimilator([data], AssimilationConfig(window_s=90.0, iters=1), closure=Recording(MLPConfig(seed=0))).run()
+        simulate(data, Recording(MLPConfig(seed=0)))
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    assert seen and set(seen) == {1}
