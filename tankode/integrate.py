@@ -98,7 +98,16 @@ class _ScaledRHS(nn.Module):
         if self._segment_evals > self.max_evals:
             raise SimulationError(f"solver exceeded {self.max_evals} right-hand-side evaluations in one segment",
                                   float(t), s)
-        ds = self.model(t, s, self.forcing)
+        # The adjoint's backward solve calls this outside integrate()'s own error handling, so a
+        # failure here must already be a SimulationError: the trainers reject such a trial point
+        # (a NaN state reaching the geometry once crashed a whole multi-environment study).
+        if not torch.isfinite(s).all():
+            raise SimulationError("non-finite state reached the right-hand side", float(t.detach()), s.detach())
+        try:
+            ds = self.model(t, s, self.forcing)
+        except (AssertionError, ValueError) as err:
+            raise SimulationError(f"right-hand side failed: {str(err).splitlines()[0]}", float(t.detach()),
+                                  s.detach()) from err
         return ds / self.scale
 
 

@@ -104,3 +104,24 @@ def test_adjoint_rejects_lsoda():
     with pytest.raises(ValueError, match="forward only"):
         integrate(None, torch.zeros(1, 7), [(0.0, 1.0)], None, torch.tensor([1.0]), torch.ones(1, 7), LSODA(),
                   Adjoint())
+
+
+def test_a_failure_in_the_adjoint_backward_pass_is_a_simulation_error(data):
+    """The backward solve runs outside integrate(): a bad state there must still be a SimulationError
+    (which the trainers reject as an infeasible trial point), naming the time, not a bare ValueError."""
+    from tankode.integrate import SimulationError
+
+    class FailsBackward(ConstantClosure):
+        armed = False
+
+        def forward(self, x):
+            if self.armed:
+                raise ValueError("level_at_volume got liquid volume(s) outside [0, tank volume]")
+            return super().forward(x)
+
+    closure = FailsBackward([2.0, 15.0, 40.0, 150.0], trainable=True)
+    a, J = _setup(data, closure, t1=660.0)
+    loss = J(Adjoint())
+    closure.armed = True
+    with pytest.raises(SimulationError, match=r"right-hand side failed: level_at_volume.*at t = "):
+        loss.backward()
