@@ -42,8 +42,8 @@ class TrainingLogger:
         w.add_scalar("optim/function_evals", report.n_evals, k)
         w.add_scalar("optim/iterations", report.n_iters, k)
         w.add_scalar("time/update_s", report.wall_s, k)
-        # One simulation of the whole fleet from t0 serves every environment's figure: it is the
-        # logging's dominant cost (an agent fitted to the newest window can be stiff from t0).
+        # One simulation of the whole fleet from t0 to the window's end serves every
+        # environment's figure: it is the logging's dominant cost.
         t = torch.linspace(assimilator.fleet.t0_s, report.t1_s, 121, dtype=torch.float64)  # (121,)
         with torch.no_grad():
             obs = assimilator.model.observe(assimilator.predict(assimilator.s0, float(t[0]), t, NoGradient()))
