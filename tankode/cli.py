@@ -145,8 +145,7 @@ def cmd_predict(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    from .diagnosis import DiagnosisConfig, HoldOutTail, LeaveOneRunOut, diagnose, write_report
-    from .mechanisms import MECHANISMS
+    from .diagnosis import DEFAULT_CANDIDATES, DiagnosisConfig, HoldOutTail, LeaveOneRunOut, diagnose, write_report
     from .run import read_run
     from .saved import load_model
 
@@ -161,7 +160,7 @@ def cmd_diagnose(args) -> int:
         split = HoldOutTail(args.holdout)
     elif args.split == "run":
         split = LeaveOneRunOut()
-    candidates = tuple(args.candidates) if args.candidates else tuple(MECHANISMS)
+    candidates = tuple(args.candidates) if args.candidates else DEFAULT_CANDIDATES
     config = DiagnosisConfig(candidates=candidates, split=split)
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
@@ -248,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
     dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
-    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: all)")
+    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.set_defaults(func=cmd_diagnose)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")

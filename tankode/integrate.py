@@ -15,7 +15,10 @@ from .state import STATE_NAMES
 
 
 class SimulationError(RuntimeError):
-    """The solver failed; carries the time (s) and the state where it was last evaluated."""
+    """The solver failed; carries the time (s) and the state where it was last evaluated.
+
+    Components beyond the tank's 7 (mechanisms' own states) are printed as ``extra_<i>``.
+    """
 
     def __init__(self, message: str, t_s: float | None = None, state: Tensor | None = None):
         where = ""
@@ -23,8 +26,10 @@ class SimulationError(RuntimeError):
             where = f" at t = {t_s:.6g} s"
         if state is not None:
             rows = []
-            for e, row in enumerate(state.detach().reshape(-1, len(STATE_NAMES)).tolist()):
-                rows.append(f"env {e}: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(STATE_NAMES, row)))
+            n = state.shape[-1]
+            names = STATE_NAMES + tuple(f"extra_{i}" for i in range(n - len(STATE_NAMES)))
+            for e, row in enumerate(state.detach().reshape(-1, n).tolist()):
+                rows.append(f"env {e}: " + ", ".join(f"{k}={v:.6g}" for k, v in zip(names, row)))
             where += " in state\n  " + "\n  ".join(rows)
         super().__init__(message + where)
         self.t_s = t_s
@@ -111,12 +116,17 @@ class _ScaledRHS(nn.Module):
         return ds / self.scale
 
 
-def state_scale(s0: Tensor, tank_volume_m3: Tensor) -> Tensor:
-    """Per-environment scales of the 7 state components, ``(env, 7)`` (see ``AdaptiveRK``)."""
+def state_scale(s0: Tensor, tank_volume_m3: Tensor, extra_scales: tuple[float, ...] = ()) -> Tensor:
+    """Per-environment scales of the state components, ``(env, 7 + len(extra_scales))`` (see ``AdaptiveRK``).
+
+    ``s0`` ``(env, >= 7)``: the initial state, whose first 7 components set the tank's scales;
+    ``extra_scales``: the mechanisms' own states' units (``TankModel.extra_state_scales``).
+    """
     m = s0[..., 0] + s0[..., 1]
     du = (s0[..., 2] - s0[..., 3]).abs().clamp_min(1e3)
     V = tank_volume_m3.expand_as(m)
-    return torch.stack([m, m, du, du, s0[..., 4], V, V], dim=-1).detach()
+    extra = [torch.full_like(m, float(x)) for x in extra_scales]
+    return torch.stack([m, m, du, du, s0[..., 4], V, V, *extra], dim=-1).detach()
 
 
 @dataclass(frozen=True)

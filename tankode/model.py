@@ -41,8 +41,10 @@ Mechanisms. Effects the baseline leaves out (``tankode.mechanisms``: heat leaks,
 losses, sensor biases, ...) enter through hooks: the forcing actually applied, extra heat into
 each control volume (added to ``e_v``, ``e_l`` and the wall balance, so conservation holds with
 them as external inputs), a liquid surface warmer than the bulk in ``Q_li``, a factor on
-``C_w`` and an offset in the observed pressure. With every parameter at 0 the model is the
-baseline exactly.
+``C_w`` and an offset in the observed pressure. A mechanism may also carry states of its own
+(a surface layer's temperature excess), integrated with the tank's: the model's state is then
+``(env, 7 + n)``, the mechanisms' states after the 7 of ``tankode.state``. With every parameter
+at 0 the model is the baseline exactly.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ from torch import Tensor, nn
 from .closures.base import Closure, ClosureInputs
 from .forcing import Forcing
 from .mechanisms import Mechanism
+from .state import N_STATE, STATE_NAMES
 
 
 class Fluxes(NamedTuple):
@@ -65,6 +68,7 @@ class Fluxes(NamedTuple):
     T_l_K: Tensor
     T_sat_K: Tensor
     H_l_m: Tensor
+    A_i_m2: Tensor
     theta_W_m2K: Tensor  # (env, 4)
     Q_vi_W: Tensor
     Q_li_W: Tensor
@@ -91,7 +95,8 @@ class TankModel(nn.Module):
             (a ``wall_heat_capacity_error`` mechanism multiplies it).
         mechanisms: extra physical effects (``tankode.mechanisms``), none by default.
 
-    Call ``model(t, s, forcing)`` with ``s`` of shape ``(env, 7)`` to get ``ds/dt`` ``(env, 7)``.
+    Call ``model(t, s, forcing)`` with ``s`` of shape ``(env, n_state)`` to get ``ds/dt`` of the
+    same shape; ``n_state`` is 7 plus the mechanisms' own states (``state_names``).
     """
 
     def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K, mechanisms=()):
@@ -111,10 +116,43 @@ class TankModel(nn.Module):
         if not torch.isfinite(cw).all() or (cw <= 0).any():
             raise ValueError(f"wall_heat_capacity_J_per_K must be positive and finite, got {cw}")
         self.register_buffer("wall_heat_capacity_J_per_K", cw)
+        # Column ranges of each mechanism's own states in s, after the tank's 7.
+        edges = [N_STATE]
+        for m in mechanisms:
+            edges.append(edges[-1] + len(m.states))
+        self._state_slices = tuple(zip(edges[:-1], edges[1:]))
+
+    @property
+    def n_state(self) -> int:
+        """Length of the state vector: 7 plus the mechanisms' own states."""
+        return self._state_slices[-1][1] if self._state_slices else N_STATE
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the state's components: ``tankode.state.STATE_NAMES``, then ``<mechanism>.<state>``."""
+        return STATE_NAMES + tuple(f"{m.id}.{v.name}" for m in self.mechanisms for v in m.states)
+
+    @property
+    def extra_state_scales(self) -> tuple[float, ...]:
+        """The solver's unit of each mechanism state (``StateVar.scale``), in state order."""
+        return tuple(v.scale for m in self.mechanisms for v in m.states)
+
+    def mechanism_states(self, s: Tensor) -> list[Tensor]:
+        """Each mechanism's own states ``(..., n_states)`` from the model state ``s`` ``(..., n_state)``."""
+        if s.shape[-1] != self.n_state:
+            raise ValueError(f"state has {s.shape[-1]} components, this model has {self.n_state} "
+                             f"({', '.join(self.state_names)})")
+        return [s[..., a:b] for a, b in self._state_slices]
+
+    def initial_state(self, s0: Tensor) -> Tensor:
+        """The model state ``(env, n_state)``: the tank's ``s0`` ``(env, 7)`` and the mechanisms' initial states."""
+        if s0.shape[-1] != N_STATE:
+            raise ValueError(f"tank state must have {N_STATE} components, got {tuple(s0.shape)}")
+        return torch.cat([s0, *(m.initial_state(s0) for m in self.mechanisms)], dim=-1)
 
     def closure_inputs(self, s: Tensor, forcing: Forcing) -> ClosureInputs:
-        """What the closure sees at state ``s`` ``(env, 7)`` under the applied ``forcing``."""
-        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        """What the closure sees at state ``s`` ``(env, n_state)`` under the applied ``forcing``."""
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
         rho_v = m_v / V_v
         rho_l = m_l / V_l
         pv = self.fluid.vapor(u_v, rho_v)
@@ -129,8 +167,8 @@ class TankModel(nn.Module):
         )
 
     def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:
-        """All heat and mass flows at state ``s`` ``(env, 7)``; also the two phases' properties."""
-        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        """All heat and mass flows at state ``s`` ``(env, n_state)``; also the two phases' properties."""
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
         x = self.closure_inputs(s, forcing)
         pv, pl, H_l, T_sat = x.vapor, x.liquid, x.H_l_m, x.T_sat_K
         rho_v, rho_l = x.rho_v_kg_m3, x.rho_l_kg_m3
@@ -140,14 +178,15 @@ class TankModel(nn.Module):
         A_wl, A_wv = g.wetted_areas_m2(H_l)
         theta = self.closure(x)
         h_vi, h_li, h_wv, h_wl = theta.unbind(-1)
-        dT_surface = sum((m.interface_offset_K() for m in self.mechanisms), 0.0)
+        zs = self.mechanism_states(s)
+        dT_surface = sum((m.interface_offset_K(z) for m, z in zip(self.mechanisms, zs)), 0.0)
         Q_vi = h_vi * A_i * (pv.T - T_sat)
         Q_li = h_li * A_i * (pl.T + dT_surface - T_sat)
         Q_wv = h_wv * A_wv * (T_w - pv.T)
         Q_wl = h_wl * A_wl * (T_w - pl.T)
         J = (Q_vi + Q_li) / (pv.h_vsat - pv.h_lsat)
         f = Fluxes(
-            p_v_Pa=p, T_v_K=pv.T, T_l_K=pl.T, T_sat_K=T_sat, H_l_m=H_l, theta_W_m2K=theta,
+            p_v_Pa=p, T_v_K=pv.T, T_l_K=pl.T, T_sat_K=T_sat, H_l_m=H_l, A_i_m2=A_i, theta_W_m2K=theta,
             Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, A_wv_m2=A_wv, A_wl_m2=A_wl, J_evap_kg_s=J,
             h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
             h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
@@ -184,10 +223,11 @@ class TankModel(nn.Module):
         return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
 
     def forward(self, t: Tensor, s: Tensor, forcing: Forcing) -> Tensor:
-        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
         fc = self.applied_forcing(forcing)
         f, pv, pl = self.fluxes(s, fc)
-        q_v, q_l, q_w = self.extra_heat_W(s, fc, f)
+        base = s[..., :N_STATE]
+        q_v, q_l, q_w = self.extra_heat_W(base, fc, f)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
         dm_l = fc.mdot_l_in_kg_s - fc.mdot_l_out_kg_s - J
@@ -207,7 +247,11 @@ class TankModel(nn.Module):
         du_v = (e_v + p * W - u_v * dm_v) / m_v
         du_l = (e_l - p * W - u_l * dm_l) / m_l
         dT_w = (fc.Q_aw_W + q_w - f.Q_wv_W - f.Q_wl_W) / self.effective_wall_heat_capacity_J_per_K
-        return torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
+        ds = torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
+        if self.n_state == N_STATE:
+            return ds
+        dz = [m.state_derivative(z, base, fc, f, pl) for m, z in zip(self.mechanisms, self.mechanism_states(s))]
+        return torch.cat([ds, *dz], dim=-1)
 
     def observe(self, s: Tensor) -> Tensor:
         """Observation operator h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]), shape ``(..., 5)``.
@@ -215,7 +259,7 @@ class TankModel(nn.Module):
         The pressure is what the sensor reads: the hydrogen pressure plus the mechanisms'
         offsets (a bias, an inert gas's partial pressure).
         """
-        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s.unbind(-1)
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
         pv = self.fluid.vapor(u_v, m_v / V_v)
         pl = self.fluid.liquid(u_l, m_l / V_l)
         H_l = self.geometry.level_at_volume(V_l)
@@ -223,7 +267,11 @@ class TankModel(nn.Module):
         return torch.stack([p, pv.T, pl.T, T_w, H_l], dim=-1)
 
     def total_energy_J(self, s: Tensor) -> Tensor:
-        """m_v u_v + m_l u_l + C_w T_w (J) for ``s`` shaped ``(env, 7)`` or ``(env, time, 7)``."""
+        """m_v u_v + m_l u_l + C_w T_w (J) for ``s`` shaped ``(env, n_state)`` or ``(env, time, n_state)``.
+
+        A mechanism's own states redistribute energy within a control volume (a surface layer's
+        excess is part of the liquid's ``u_l``), so they do not enter the total.
+        """
         cw = torch.as_tensor(self.effective_wall_heat_capacity_J_per_K)
         if cw.dim() == 1 and s.dim() == 3:
             cw = cw[:, None]  # (env, 1) against (env, time)

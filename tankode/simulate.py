@@ -25,7 +25,8 @@ class Solution:
 
     Attributes:
         t_s: output times ``(T,)`` (s).
-        states: ``(env, T, 7)`` states ``[m_v, m_l, u_v, u_l, T_w, V_v, V_l]`` (``tankode.state``).
+        states: ``(env, T, 7)`` states ``[m_v, m_l, u_v, u_l, T_w, V_v, V_l]`` (``tankode.state``),
+            followed by the mechanisms' own states if they have any (``TankModel.state_names``).
         observations: ``(env, T, 5)`` = h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]).
         status: "success" (failures raise ``SimulationError`` instead of returning).
         stats: right-hand-side evaluations and segments.
@@ -97,10 +98,10 @@ def simulate(
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
     closure = ReferenceClosure() if closure is None else closure
     model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K, mechanisms)
-    s0 = fleet.initial_state(model.mechanisms)
+    s0 = model.initial_state(fleet.initial_state(model.mechanisms))  # (env, n_state)
     t_out = output_times(fleet, output_dt_s, t_eval)
     start = time.perf_counter()
-    states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out, state_scale(s0, fleet.geometry.volume_m3),
+    states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out, state_scale(s0, fleet.geometry.volume_m3, model.extra_state_scales),
                               solver, NoGradient())
     wall = time.perf_counter() - start
     with torch.no_grad():

@@ -68,10 +68,13 @@ HIDDEN = [
 FAST = {"heat_leak_vapor", "vapor_leak"}
 
 
-def test_every_mechanism_has_a_hidden_mechanism_test():
+def test_every_default_candidate_has_a_hidden_mechanism_test():
+    from tankode.diagnosis import DEFAULT_CANDIDATES
     from tankode.mechanisms import MECHANISMS
 
-    assert sorted(h[1] for h in HIDDEN) == sorted(MECHANISMS)
+    assert sorted(h[1] for h in HIDDEN) == sorted(DEFAULT_CANDIDATES)
+    # the one mechanism left out of the defaults (opt-in: experiments/README.md says why)
+    assert set(MECHANISMS) - set(DEFAULT_CANDIDATES) == {"surface_layer"}
 
 
 def _data(case: str, mechanism: str | None, value: float, seed: int, noise: str = "low"):
@@ -79,7 +82,8 @@ def _data(case: str, mechanism: str | None, value: float, seed: int, noise: str 
     mechs = []
     if mechanism is not None:
         m = make_mechanism(mechanism)
-        mechs = [make_mechanism(mechanism, **{m.params[0].name: value})]
+        values = value if isinstance(value, dict) else {m.params[0].name: value}
+        mechs = [make_mechanism(mechanism, **values)]
     (data,) = solution_to_runs(run, simulate(run, mechanisms=mechs), noise=noise, seed=seed)
     return data
 
@@ -90,8 +94,9 @@ def _check_found(d, mechanism: str, value: float) -> None:
     assert top.score_rank <= 3, top.score_rank
     assert top.mechanism == mechanism, [(c.mechanism, c.delta_bic, c.heldout_gain, c.reasons) for c in d.ranking[:3]]
     assert d.cause == mechanism, top.reasons
-    (estimate,) = d.extended["params"].values()
-    assert estimate == pytest.approx(value, rel=0.25)
+    # the presence parameter (the first; a multi-parameter mechanism's others only shape it)
+    name, estimate = next(iter(d.extended["params"].items()))
+    assert estimate == pytest.approx(value[name] if isinstance(value, dict) else value, rel=0.25)
     assert top.heldout_gain > 0 and top.heldout_gain_ci[0] > 0
 
 
@@ -203,3 +208,16 @@ def test_splits_partition_the_samples_and_validate():
     with pytest.raises(ValueError, match=r"fraction must be in \(0, 0.8\]"):
         HoldOutTail(0.9)
     assert set(obs.phase[0]) == {"hold", "sloshing"} and "heat ingress" in set(obs.phase[1])
+
+
+@pytest.mark.slow
+def test_a_refit_whose_one_step_start_fails_restarts_from_zero_and_says_so():
+    # case 3's 28 K wall feeds a hidden 2 cm surface layer 2 % of its heat; the score test's
+    # one-step estimate of the three layer parameters runs the layer away above saturation
+    # (the state leaves the property domain), so the refit must restart from the layer absent.
+    values = {"inv_thickness_1_per_m": 50.0, "wall_share": 0.02}
+    d = diagnose([_data("case3", "surface_layer", values, 16)],
+                 config=DiagnosisConfig(candidates=("surface_layer", "heat_leak_vapor")))
+    (c,) = [c for c in d.ranking if c.mechanism == "surface_layer"]
+    assert c.refit and any("refitted from 0 instead" in n for n in c.notes), c.notes
+    assert c.heldout_gain > 0.3  # the restarted fit explains much of the layer's signature

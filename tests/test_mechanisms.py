@@ -32,8 +32,9 @@ def _tank(mechanisms=()):
 
 def _run(model, s0, geom, forcing, t_end=1800.0, n=31):
     t = torch.linspace(0, t_end, n, dtype=torch.float64)
-    states, _ = integrate(model, s0, [(0.0, t_end)], lambda t0, s: forcing, t, state_scale(s0, geom.volume_m3),
-                          TIGHT, NoGradient())
+    s0 = model.initial_state(s0)  # (1, n_state)
+    states, _ = integrate(model, s0, [(0.0, t_end)], lambda t0, s: forcing, t,
+                          state_scale(s0, geom.volume_m3, model.extra_state_scales), TIGHT, NoGradient())
     return t, states[0]
 
 
@@ -44,10 +45,14 @@ def test_every_mechanism_is_documented_bounded_and_absent_at_zero():
     for mid, cls in MECHANISMS.items():
         m = make_mechanism(mid)
         assert cls.__doc__ and m.signature and m.params
-        # value 0 = absent: the right-hand side and the observations are the baseline's exactly
+        # value 0 = absent: the right-hand side and the observations are the baseline's exactly,
+        # and a mechanism's own states start at 0 and stay there
         model, _, _ = _tank([m])
-        assert torch.equal(model(torch.tensor(0.0), s0, f), ref), mid
-        assert torch.equal(model.observe(s0), model0.observe(s0)), mid
+        s = model.initial_state(s0)  # (1, 7 + own states)
+        assert s.shape == (1, 7 + len(m.states)) and torch.equal(s[:, 7:], torch.zeros(1, len(m.states))), mid
+        ds = model(torch.tensor(0.0), s, f)
+        assert torch.equal(ds[:, :7], ref) and torch.equal(ds[:, 7:], torch.zeros(1, len(m.states))), mid
+        assert torch.equal(model.observe(s), model0.observe(s0)), mid
         p = m.params[0]
         with pytest.raises(ValueError, match=rf"{p.name} = .* outside its allowed range"):
             make_mechanism(mid, **{p.name: p.upper * 2 + 1})
@@ -102,6 +107,36 @@ def test_closed_tank_stays_conservative_with_stratification_and_wall_capacity_er
     base, _, _ = _tank()
     _, sb = _run(base, s0, geom, Forcing.rest(1, slosh_amplitude_m=0.01, slosh_frequency_Hz=0.5))
     assert (s[-1, 0] - sb[-1, 0]).abs() > 1e-2 and (s[-1, 4] - sb[-1, 4]).abs() > 1e-3
+
+
+def test_surface_layer_state_follows_its_equation_and_conserves_energy():
+    inv_delta, phi, k = 50.0, 0.3, 2e-4  # a 2 cm layer taking 30 % of the wall's heat, mixing in 1.4 h
+    layer = make_mechanism("surface_layer", inv_thickness_1_per_m=inv_delta, wall_share=phi, mixing_rate_1_per_s=k)
+    model, s0, geom = _tank([layer])
+    assert model.n_state == 8 and model.state_names[-1] == "surface_layer.dT_layer_K"
+    f = Forcing.rest(1, Q_aw_W=300.0)
+    # The layer's rate against the equation of its docstring, evaluated here from the model's flows.
+    s = torch.cat([s0, torch.tensor([[0.4]], dtype=torch.float64)], dim=-1)  # (1, 8): layer 0.4 K warm
+    fl, _, pl = model.fluxes(s, f)
+    base, _, _ = _tank()
+    fl0, _, _ = base.fluxes(s0, f)
+    h_li = fl.theta_W_m2K[0, 1]
+    # the interface sees the layer: Q_li grows by h_li A_i x
+    assert float(fl.Q_li_W[0] - fl0.Q_li_W[0]) == pytest.approx(float(h_li * fl.A_i_m2[0] * 0.4), rel=1e-12)
+    C_s = float(s0[0, 1] / s0[0, 6] * pl.cp[0] * fl.A_i_m2[0]) / inv_delta
+    expected = float(phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / C_s - k * 0.4
+    assert float(model(torch.tensor(0.0), s, f)[0, 7]) == pytest.approx(expected, rel=1e-12)
+    assert abs(expected) > 1e-5  # the check is not vacuous
+    # Integrated: energy changes only by the ambient heat, mass is conserved, the layer warms.
+    t, traj = _run(model, s0, geom, f)
+    E = model.total_energy_J(traj[None])[0]
+    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    mass = traj[:, 0] + traj[:, 1]
+    assert (mass - mass[0]).abs().max() / mass[0] < 1e-10
+    assert float(traj[-1, 7]) > 0.05
+    # A warm surface condenses less vapour than the baseline: more vapour, higher pressure.
+    _, tb = _run(base, s0, geom, f)
+    assert float(traj[-1, 0] - tb[-1, 0]) > 0 and float(model.observe(traj[-1:])[0, 0] - base.observe(tb[-1:])[0, 0]) > 0
 
 
 def test_leaks_and_meter_bias_move_the_mass_they_say():

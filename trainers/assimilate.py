@@ -44,6 +44,7 @@ from tankode.fleet import Fleet
 from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
 from tankode.solver import AdaptiveRK, Adjoint, Backprop, NoGradient
+from tankode.state import N_STATE
 
 from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
@@ -209,8 +210,8 @@ class Assimilator:
         self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed))
         self.model = TankModel(self.fleet.fluid, self.fleet.geometry, self.closure,
                                self.fleet.wall_heat_capacity_J_per_K, mechanisms)
-        self.s0 = self.fleet.initial_state(self.model.mechanisms)
-        self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3)
+        self.s0 = self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))  # (env, n_state)
+        self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3, self.model.extra_state_scales)
         self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
         self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
@@ -236,7 +237,10 @@ class Assimilator:
         return t_k, self._data_corrected(s_next, *self.windows[k - 1])
 
     def _data_corrected(self, s_model: Tensor, t0: float, t1: float) -> Tensor:
-        """The model's state at t1 with every measured channel replaced by a line fit ending at t1."""
+        """The model's state at t1 with every measured channel replaced by a line fit ending at t1.
+
+        Unmeasured mechanism states (a surface layer's excess) keep the model's values.
+        """
         with torch.no_grad():
             obs = self.model.observe(s_model).numpy().copy()  # (env, 5): p_v, T_v, T_l, T_w, H_l
         t0 = max([t0, t1 - FIT_SPAN_S, *self.fleet.breakpoints(t0, t1)])
@@ -248,7 +252,8 @@ class Assimilator:
                     _, intercept = np.polyfit(t[sel] - t1, v[sel], 1)
                     obs[e, c] = intercept
         V_l = self.fleet.geometry.volume_at_level(torch.as_tensor(obs[:, 4])).detach().numpy()
-        return self.fleet.state_from(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], V_l)
+        tank = self.fleet.state_from(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], V_l)  # (env, 7)
+        return torch.cat([tank, s_model[:, N_STATE:].detach()], dim=-1)
 
     # -- one window ----------------------------------------------------------------------------
 

@@ -6,7 +6,7 @@ notebooks: ``calibrate``, ``residual_report``, ``score_tests``, ``bootstrap_gain
 """
 
 from .data import HoldOutTail, LeaveOneRunOut, Observed
-from .diagnose import Candidate, Diagnosis, DiagnosisConfig, Thresholds, calibrate, diagnose
+from .diagnose import DEFAULT_CANDIDATES, Candidate, Diagnosis, DiagnosisConfig, Thresholds, calibrate, diagnose
 from .evidence import bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
 from .forward import Problem
@@ -14,7 +14,7 @@ from .report import write_report
 from .residuals import ljung_box, residual_report
 
 __all__ = [
-    "Candidate", "Diagnosis", "DiagnosisConfig", "Fit", "HoldOutTail", "LeaveOneRunOut", "Observed", "Problem",
+    "DEFAULT_CANDIDATES", "Candidate", "Diagnosis", "DiagnosisConfig", "Fit", "HoldOutTail", "LeaveOneRunOut", "Observed", "Problem",
     "Thresholds", "bootstrap_gain", "calibrate", "diagnose", "fit", "information_criteria", "ljung_box",
     "residual_report", "score_tests", "write_report",
 ]

@@ -58,7 +58,8 @@ class Thresholds:
             extension is not worth a parameter to an engineer)...
         gain_ci_low: ...with the lower end of its bootstrap interval above this (0: the gain
             is not an accident of which held-out blocks were seen).
-        z_score: estimate / standard error at least this (3: the parameter is resolved).
+        z_score: estimate / standard error at least this (3: the parameter is resolved), for
+            the mechanism's first parameter (its presence; the others shape it).
         stability: a mechanism's parameter is a constant of the tank. Refitted on the held-out
             data alone (the closure fixed as calibrated), it must agree with the calibration
             estimate within this relative tolerance plus three combined standard errors. An
@@ -84,12 +85,21 @@ class Thresholds:
     alternative_bic: float = 10.0
 
 
+# Every mechanism but ``surface_layer`` (a layer with its own state). Hidden in tankode's cases
+# it is not found reliably: its three parameters trade off against each other and its settled
+# excess looks like ``thermal_stratification``'s constant one (case 3: the constant offset is
+# named instead; case 1: ranked first with the thickness within 9 % but estimate/std 0.5;
+# experiments/README.md). It is considered when asked for (``candidates``, ``--candidates``).
+DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m != "surface_layer")
+
+
 @dataclass(frozen=True)
 class DiagnosisConfig:
     """How the diagnosis runs.
 
     Attributes:
-        candidates: mechanism ids to consider (all of ``tankode.mechanisms`` by default).
+        candidates: mechanism ids to consider (``DEFAULT_CANDIDATES``: every mechanism of
+            ``tankode.mechanisms`` but ``surface_layer``, which is opt-in).
         split: ``HoldOutTail()`` (default for one run) or ``LeaveOneRunOut()``; None picks
             leave-one-run-out for several runs and the tail for one.
         refit_top: how many score-ranked candidates to refit (None = all). Each refit costs
@@ -111,7 +121,7 @@ class DiagnosisConfig:
             "none"; experiments/README.md).
     """
 
-    candidates: tuple[str, ...] = tuple(MECHANISMS)
+    candidates: tuple[str, ...] = DEFAULT_CANDIDATES
     split: HoldOutTail | LeaveOneRunOut | None = None
     refit_top: int | None = 5
     max_iterations: int = 15
@@ -154,6 +164,7 @@ class Candidate:
     heldout_estimate: dict = field(default_factory=dict)
     passes: bool = False
     reasons: list = field(default_factory=list)
+    notes: list = field(default_factory=list)  # how the refit went, when it departed from the usual path
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -360,8 +371,20 @@ def _stitch(heldout_pred: np.ndarray, fit_pred: np.ndarray, heldout: np.ndarray)
 
 def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, config, fits) -> None:
     params = list(base.params) + mechanism_params(cand.mechanism)
-    x0 = np.concatenate([base.values, [sc.one_step[p.name] for p in mechanism_params(cand.mechanism)]])
-    ext, held = folds.run(params, x0, config.max_iterations_refit)
+    mparams = mechanism_params(cand.mechanism)
+    x0 = np.concatenate([base.values, [sc.one_step[p.name] for p in mparams]])
+    try:
+        ext, held = folds.run(params, x0, config.max_iterations_refit)
+    except SimulationError as err:
+        # The score's one-step estimate extrapolates a linearisation at 0; for a strongly
+        # nonlinear mechanism it can lie where the model cannot be integrated (a surface layer
+        # running away above saturation under a warm wall). The fit then starts from the
+        # mechanism absent, and the report says so.
+        start = ", ".join(f"{p.name} = {sc.one_step[p.name]:.3g}" for p in mparams)
+        cand.notes.append(f"the refit from the score's one-step estimate ({start}) failed "
+                          f"({str(err).splitlines()[0]}); refitted from 0 instead")
+        ext, held = folds.run(params, np.concatenate([base.values, np.zeros(len(mparams))]),
+                              config.max_iterations_refit)
     fits[cand.mechanism] = (ext, held)
     ic = information_criteria(base, ext)
     terms = heldout_terms(problem.obs, held, folds.heldout, config.block_s)
@@ -371,7 +394,11 @@ def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, co
     floor = 0.5 * int((base_terms[1].sum(0) > 0).sum())
     explained = (base_loss - loss) / (base_loss - floor) if base_loss > floor else 0.0
     vals, stds = _mech_values(ext, cand.mechanism), _mech_values(ext, cand.mechanism, std=True)
-    z = min(abs(v) / s if s > 0 else np.inf for v, s in zip(vals.values(), stds.values()))
+    # The first parameter is the mechanism's presence (at 0 it is absent whatever the others,
+    # which only shape it, e.g. a surface layer's mixing rate): it must be resolved; a shape
+    # parameter at its bound 0 is a legitimate estimate, not an unresolved one.
+    first = next(iter(vals))
+    z = abs(vals[first]) / stds[first] if stds[first] > 0 else np.inf
     cand.refit = True
     cand.params, cand.params_std, cand.z_score = vals, stds, float(z)
     cand.likelihood_ratio, cand.delta_bic, cand.delta_aic = ic["likelihood_ratio"], ic["delta_bic"], ic["delta_aic"]

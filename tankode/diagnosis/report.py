@@ -102,6 +102,8 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
         expl = f"{c.explained:.0%}" if c.refit else ""
         ic = f"{c.delta_bic:.1f} | {c.likelihood_ratio:.1f}" if c.refit else " | "
         L.append(f"| {i} | `{c.mechanism}` | {est} | {c.score:.3g} | {ic} | {gain} | {expl} | {verdict} |")
+    notes = [f"Note on `{c.mechanism}`: {n}." for c in d.ranking for n in c.notes]
+    L += [""] + notes if notes else []
     L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", "",
           "| channel | baseline | extended |", "|---|---|---|"]
     ext = d.extended["heldout_loss_by_channel"] if d.extended else {}

@@ -5,19 +5,21 @@
 
 from __future__ import annotations
 
-from .base import Mechanism, Param
+from .base import Mechanism, Param, StateVar
 from .dry_wall import DryWallHeating
 from .heat_leaks import HeatLeakLiquid, HeatLeakVapor, HeatLeakWall
 from .leaks import LiquidLeak, VaporLeak
 from .noncondensable import NoncondensableGas
 from .sensors import InflowMeterBias, PressureSensorBias
 from .stratification import ThermalStratification
+from .surface_layer import SurfaceLayer
 from .wall_capacity import WallHeatCapacityError
 
 MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
-              WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating)
+              WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
+              SurfaceLayer)
 }
 
 
@@ -44,7 +46,8 @@ def mechanisms_from_spec(spec) -> list[Mechanism]:
 
 
 __all__ = [
-    "MECHANISMS", "Mechanism", "Param", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
+    "MECHANISMS", "Mechanism", "Param", "StateVar", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
+    "SurfaceLayer",
 ]

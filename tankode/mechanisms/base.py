@@ -11,10 +11,23 @@ It acts through hooks of ``TankModel``, each a no-op by default:
 * ``heat_W``: extra heat into the vapour, the liquid and the wall (W), which may depend on the
   state, the applied forcing and the baseline's flows (a redistribution sums to 0);
 * ``interface_offset_K``: a liquid surface temperature above the bulk's at the interface;
+* ``state_derivative``: the rate of the mechanism's own states (``states``, e.g. a surface
+  layer's temperature excess), which the model appends to the 7 of ``tankode.state``;
 * ``wall_capacity_factor``: multiply m_w c_w;
 * ``pressure_offset_Pa``: what the pressure sensor reads beyond the hydrogen's own pressure
   (a bias, an inert gas). The run's initial pressure is a sensor reading too, so the same
   offset is removed from it when the initial state is built (``Fleet.initial_state``).
+
+Own states. A mechanism may carry ``states`` (a tuple of ``StateVar``) that the ODE integrates
+with the tank's: the model's state is then ``(env, 7 + n)``, the mechanisms' states after the
+tank's, in the order of the model's mechanisms. They start at ``initial_state`` (0: nothing
+accumulated yet) and every hook that may depend on them receives the mechanism's own slice
+``z`` ``(env, n_states)`` (``(env, 0)`` for a mechanism without states). With every parameter at
+0 a state must stay at 0, so that the baseline is still the extended model at 0.
+
+The first parameter is the mechanism's presence: at 0 the mechanism is absent whatever the
+others, which only shape it (a surface layer's mixing rate); the diagnosis requires it, not the
+shape parameters, to be resolved.
 
 Parameters are a float64 buffer ``value``: ``(n_params,)``, shared by every environment of a
 fleet (one tank observed in several runs), or ``(env, n_params)``, one row per environment (the
@@ -59,6 +72,25 @@ class Param:
             raise ValueError(f"parameter {self.name}: need lower <= 0 <= upper and scale > 0")
 
 
+@dataclass(frozen=True)
+class StateVar:
+    """One state a mechanism adds to the ODE.
+
+    Attributes:
+        name: identifier with its unit suffix (e.g. ``dT_layer_K``).
+        unit: SI unit, for reports and error messages.
+        scale: a typical magnitude: the solver's unit for this component (``state_scale``).
+    """
+
+    name: str
+    unit: str
+    scale: float
+
+    def __post_init__(self):
+        if not (self.scale > 0 and math.isfinite(self.scale)):
+            raise ValueError(f"state {self.name}: scale must be positive and finite, got {self.scale}")
+
+
 class Mechanism(nn.Module):
     """Base class of a candidate mechanism (see the module docstring for the hooks).
 
@@ -75,6 +107,7 @@ class Mechanism(nn.Module):
     id: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
     signature: ClassVar[str] = ""
+    states: ClassVar[tuple[StateVar, ...]] = ()
 
     def __init__(self, **values: float):
         super().__init__()
@@ -133,9 +166,21 @@ class Mechanism(nn.Module):
         """
         return 0.0, 0.0, 0.0
 
-    def interface_offset_K(self) -> Tensor | float:
-        """How much warmer than the bulk liquid the liquid at the interface is (K)."""
+    def interface_offset_K(self, z: Tensor) -> Tensor | float:
+        """How much warmer than the bulk liquid the liquid at the interface is (K), given own states ``z``."""
         return 0.0
+
+    def initial_state(self, s0: Tensor) -> Tensor:
+        """Own states ``(env, n_states)`` at the start, for the tank's initial state ``s0`` ``(env, 7)``."""
+        return s0.new_zeros(s0.shape[0], len(self.states))
+
+    def state_derivative(self, z: Tensor, s: Tensor, forcing: Forcing, fluxes, liquid) -> Tensor:
+        """d/dt of own states ``z`` ``(env, n_states)`` at tank state ``s`` ``(env, 7)``.
+
+        ``fluxes`` is the model's ``tankode.model.Fluxes`` at ``s`` (with every mechanism's
+        effect on them) and ``liquid`` the liquid's ``PhaseProps``.
+        """
+        return z.new_zeros(z.shape)
 
     def wall_capacity_factor(self) -> Tensor | float:
         """Factor on the nominal m_w c_w."""
@@ -146,4 +191,4 @@ class Mechanism(nn.Module):
         return 0.0
 
 
-__all__ = ["Mechanism", "Param"]
+__all__ = ["Mechanism", "Param", "StateVar"]

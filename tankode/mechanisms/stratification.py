@@ -23,7 +23,7 @@ class ThermalStratification(Mechanism):
     params = (Param("dT_K", "K", 0.0, 5.0, 0.1),)
     signature = "pressure above the model, growing when h_li is large"
 
-    def interface_offset_K(self):
+    def interface_offset_K(self, z):
         return self.param(0)
 
 
