@@ -95,3 +95,19 @@ def test_gradcheck_rhs_through_the_real_surrogate():
     out_scale = model(torch.tensor(0.0), s0, f).abs().detach() + 1e-12
     torch.autograd.gradcheck(lambda x: model(torch.tensor(0.0), x * scale, f) / out_scale, (z,), eps=1e-5,
                              atol=1e-4, rtol=1e-3)
+
+
+def test_domain_is_checked_over_each_runs_own_span_only():
+    # A fleet integrates every run to the longest one's end: a short run's state past its own
+    # end is not scored and must not fail the simulation; within its span it must.
+    from tankode.integrate import SimulationError
+    from tankode.simulate import _check_domain
+
+    fleet = Fleet.from_runs([case1().until(600.0), case1()])
+    t = torch.tensor([0.0, 300.0, 600.0, 1200.0], dtype=torch.float64)
+    states = fleet.initial_state()[:, None, :].repeat(1, 4, 1)  # (env, T, 7)
+    states[0, 3, 2] = 5e6  # short run, after its end: a vapour energy far outside the domain
+    _check_domain(fleet, t, states)
+    states[0, 2, 2] = 5e6  # at its last scored time
+    with pytest.raises(SimulationError, match="run 'case1': the vapor state left"):
+        _check_domain(fleet, t, states)

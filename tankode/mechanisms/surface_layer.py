@@ -38,7 +38,10 @@ class SurfaceLayer(Mechanism):
     Limits: the share ``phi`` is constant (a boundary layer's delivery to the surface depends
     on the wall's superheat and the fill); the layer's own temperature change relative to the
     bulk neglects the bulk's warming (``C_s`` << ``m_l c_p,l``); sloshing does not erase it
-    unless ``k`` is fitted to it; the interface's mass exchange carries no layer enthalpy.
+    unless ``k`` is fitted to it; the interface's mass exchange carries no layer enthalpy. The
+    wall-fed source is the product of ``1/delta`` and ``phi``, so at 0 (where the score test
+    and a fit from 0 look) it has no slope: they see only the interface's part (on the
+    MHTB tests none at all: score 0, a fit from 0 stays there); start a fit from a layer.
     """
 
     id = "surface_layer"
