@@ -223,10 +223,10 @@ class TankModel(nn.Module):
         return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
 
     def forward(self, t: Tensor, s: Tensor, forcing: Forcing) -> Tensor:
-        m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
+        base = s[..., :N_STATE]  # (env, 7): the tank's part; mechanisms' own states follow it
+        m_v, m_l, u_v, u_l, T_w, V_v, V_l = base.unbind(-1)
         fc = self.applied_forcing(forcing)
         f, pv, pl = self.fluxes(s, fc)
-        base = s[..., :N_STATE]
         q_v, q_l, q_w = self.extra_heat_W(base, fc, f)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J

@@ -370,8 +370,8 @@ def _stitch(heldout_pred: np.ndarray, fit_pred: np.ndarray, heldout: np.ndarray)
 
 
 def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, config, fits) -> None:
-    params = list(base.params) + mechanism_params(cand.mechanism)
     mparams = mechanism_params(cand.mechanism)
+    params = list(base.params) + mparams
     x0 = np.concatenate([base.values, [sc.one_step[p.name] for p in mparams]])
     try:
         ext, held = folds.run(params, x0, config.max_iterations_refit)
