@@ -103,6 +103,21 @@ def test_mhtb_quick(tmp_path):
         assert (tmp_path / name).stat().st_size > 10_000
 
 
+@pytest.mark.slow
+def test_mhtb_layer_quick(tmp_path):
+    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
+        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
+    _run("mhtb_layer.py", tmp_path)
+    rows = json.loads((tmp_path / "summary.json").read_text())
+    # per start: both tests calibrated together, then each predicted from the other
+    assert [(r["start"], r["calibrated_on"], r["test"]) for r in rows[:4]] == [
+        ("absent", "P263968K+P263981D", "P263968K"), ("absent", "P263968K+P263981D", "P263981D"),
+        ("absent", "P263981D", "P263968K"), ("absent", "P263968K", "P263981D")]
+    assert len(rows) == 8 and all(r["p_rmse_Pa"] > 0 and r["ebm_p_rmse_Pa"] > 0 for r in rows)
+    # from the layer absent the fit has no slope along the layer and leaves it at 0
+    assert rows[0]["values"]["surface_layer.inv_thickness_1_per_m"] == 0.0
+
+
 def test_closure_inputs_quick(tmp_path):
     _run("closure_inputs.py", tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
