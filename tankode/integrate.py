@@ -17,17 +17,20 @@ from .state import STATE_NAMES
 class SimulationError(RuntimeError):
     """The solver failed; carries the time (s) and the state where it was last evaluated.
 
-    Components beyond the tank's 7 (mechanisms' own states) are printed as ``extra_<i>``.
+    ``names``: the state's component names (``TankModel.state_names``, which names the
+    mechanisms' own states); without them, components beyond the tank's 7 print as ``extra_<i>``.
     """
 
-    def __init__(self, message: str, t_s: float | None = None, state: Tensor | None = None):
+    def __init__(self, message: str, t_s: float | None = None, state: Tensor | None = None,
+                 names: tuple[str, ...] | None = None):
         where = ""
         if t_s is not None:
             where = f" at t = {t_s:.6g} s"
         if state is not None:
             rows = []
             n = state.shape[-1]
-            names = STATE_NAMES + tuple(f"extra_{i}" for i in range(n - len(STATE_NAMES)))
+            if names is None or len(names) != n:
+                names = STATE_NAMES + tuple(f"extra_{i}" for i in range(n - len(STATE_NAMES)))
             for e, row in enumerate(state.detach().reshape(-1, n).tolist()):
                 rows.append(f"env {e}: " + ", ".join(f"{k}={v:.6g}" for k, v in zip(names, row)))
             where += " in state\n  " + "\n  ".join(rows)
@@ -93,6 +96,7 @@ class _ScaledRHS(nn.Module):
         self.counter = counter
         self.max_evals = max_evals
         self._segment_evals = 0
+        self.names = getattr(model, "state_names", None)  # analytic test models have none
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:
         s = z * self.scale
@@ -102,17 +106,18 @@ class _ScaledRHS(nn.Module):
         self.counter.last_s = s.detach()
         if self._segment_evals > self.max_evals:
             raise SimulationError(f"solver exceeded {self.max_evals} right-hand-side evaluations in one segment",
-                                  float(t), s)
+                                  float(t), s, self.names)
         # The adjoint's backward solve calls this outside integrate()'s own error handling, so a
         # failure here must already be a SimulationError: the trainers reject such a trial point
         # (a NaN state reaching the geometry once crashed a whole multi-environment study).
         if not torch.isfinite(s).all():
-            raise SimulationError("non-finite state reached the right-hand side", float(t.detach()), s.detach())
+            raise SimulationError("non-finite state reached the right-hand side", float(t.detach()), s.detach(),
+                                  self.names)
         try:
             ds = self.model(t, s, self.forcing)
         except (AssertionError, ValueError) as err:
             raise SimulationError(f"right-hand side failed: {str(err).splitlines()[0]}", float(t.detach()),
-                                  s.detach()) from err
+                                  s.detach(), self.names) from err
         return ds / self.scale
 
 
@@ -190,6 +195,7 @@ def integrate(
     if isinstance(solver, LSODA) and not isinstance(gradient, NoGradient):
         raise ValueError("the LSODA solver is forward only; use AdaptiveRK() with Backprop() or Adjoint()")
     counter = _Counter()
+    names = getattr(model, "state_names", None)
     outputs: list[Tensor] = []
     if float(t_eval[0]) <= t_start + 1e-9:
         outputs.append(s0[:, None, :])
@@ -207,10 +213,11 @@ def integrate(
                 raise
             except (AssertionError, RuntimeError, ValueError) as err:
                 raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}",
-                                      counter.last_t, counter.last_s) from err
+                                      counter.last_t, counter.last_s, names) from err
             traj = (z * scale).permute(1, 0, 2)  # (env, len(ts), 7)
             if not torch.isfinite(traj).all():
-                raise SimulationError(f"non-finite state in segment [{t0:.6g}, {t1:.6g}] s", counter.last_t, counter.last_s)
+                raise SimulationError(f"non-finite state in segment [{t0:.6g}, {t1:.6g}] s", counter.last_t,
+                                      counter.last_s, names)
             outputs.append(traj[:, 1:-1])
             if bool(((t_eval - t1).abs() < 1e-9).any()):
                 outputs.append(traj[:, -1:])

@@ -107,12 +107,12 @@ def simulate(
     with torch.no_grad():
         obs = model.observe(states)
     if check_domain:
-        _check_domain(fleet, t_out, states)
+        _check_domain(fleet, t_out, states, model.state_names)
     notes = tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(fleet.runs, fleet.walls) if w.assumed)
     return Solution(t_out, states, obs, "success", stats, wall, notes)
 
 
-def _check_domain(fleet: Fleet, t: Tensor, states: Tensor) -> None:
+def _check_domain(fleet: Fleet, t: Tensor, states: Tensor, names: tuple[str, ...]) -> None:
     rho_v = states[..., 0] / states[..., 5]
     rho_l = states[..., 1] / states[..., 6]
     # A fleet integrates every run to the longest one's end; a state past a run's own end
@@ -126,7 +126,7 @@ def _check_domain(fleet: Fleet, t: Tensor, states: Tensor) -> None:
             raise SimulationError(
                 f"run {fleet.runs[env].name!r}: the {phase} state left the property surrogate's fitted domain "
                 f"({fleet.fluid.domain}); widen the Domain (tankode.properties.Domain) and refit",
-                float(t[k]), states[env, k][None],
+                float(t[k]), states[env, k][None], names,
             )
 
 

@@ -9,6 +9,7 @@ from tankode.fleet import Fleet
 from tankode.model import TankModel
 from tankode.closures import ReferenceClosure
 from tankode.simulate import simulate
+from tankode.state import STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +108,26 @@ def test_domain_is_checked_over_each_runs_own_span_only():
     t = torch.tensor([0.0, 300.0, 600.0, 1200.0], dtype=torch.float64)
     states = fleet.initial_state()[:, None, :].repeat(1, 4, 1)  # (env, T, 7)
     states[0, 3, 2] = 5e6  # short run, after its end: a vapour energy far outside the domain
-    _check_domain(fleet, t, states)
+    _check_domain(fleet, t, states, STATE_NAMES)
     states[0, 2, 2] = 5e6  # at its last scored time
     with pytest.raises(SimulationError, match="run 'case1': the vapor state left"):
-        _check_domain(fleet, t, states)
+        _check_domain(fleet, t, states, STATE_NAMES)
+
+
+def test_a_failed_simulation_names_the_mechanisms_own_states():
+    # The error prints the state where the solver stopped; a mechanism's own state must be
+    # printed by its name, as TankModel.state_names gives it, not as an anonymous extra.
+    from tankode.integrate import SimulationError, integrate, state_scale
+    from tankode.mechanisms import MECHANISMS
+    from tankode.solver import AdaptiveRK, NoGradient
+
+    fleet = Fleet.from_runs([case1().until(60.0)])
+    layer = MECHANISMS["surface_layer"](inv_thickness_1_per_m=100.0, wall_share=1.0, mixing_rate_1_per_s=0.0)
+    model = TankModel(fleet.fluid, fleet.geometry, ReferenceClosure(), fleet.wall_heat_capacity_J_per_K, (layer,))
+    s0 = model.initial_state(fleet.initial_state(model.mechanisms))  # (env, 8)
+    s0[0, 7] = float("nan")  # the layer's excess: non-finite, so the first evaluation must fail
+    t = torch.tensor([0.0, 60.0], dtype=torch.float64)
+    with pytest.raises(SimulationError, match=r"surface_layer\.dT_layer_K=nan") as err:
+        integrate(model, s0, fleet.segments(0.0, 60.0), fleet.forcing, t,
+                  state_scale(s0, fleet.geometry.volume_m3, model.extra_state_scales), AdaptiveRK(), NoGradient())
+    assert "extra_0" not in str(err.value)
