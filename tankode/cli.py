@@ -247,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
     dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
-    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer)")
+    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer and boundary_layer_stratification)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.set_defaults(func=cmd_diagnose)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")
