@@ -99,6 +99,21 @@ def test_mhtb_quick(tmp_path):
     assert set(summary["leave_one_out"]) == {"P263968K", "P263981D"}
     assert all(v["ok"] for v in summary["cli_predict"].values())
     assert (tmp_path / "diagnosis" / "model" / "model.json").exists()
+    # Step 5: the boundary-layer-fed layer, calibrated on both tests and on each alone, saved with
+    # its values and applied through `tankode predict` to the test it was not calibrated on.
+    layer = summary["layer"]
+    assert set(layer["fits"]) == {"P263968K+P263981D", "P263968K", "P263981D"}
+    for key, fit in layer["fits"].items():
+        held = [n for n in ("P263968K", "P263981D") if n not in key.split("+")]
+        assert sorted(fit["predictions"]) == sorted(held or ["P263968K", "P263981D"])
+        assert all(p["cli_predict"]["ok"] and p["cli_predict"]["p_rmse_Pa"] > 0 for p in fit["predictions"].values())
+        # the start is the grid point with the least chi2 on the training tests
+        assert len(fit["grid"]) == 12 and min(fit["grid"], key=lambda r: r["chi2"])["inv_thickness_1_per_m"] == \
+            fit["start"]["inv_thickness_1_per_m"]
+        (saved,) = json.loads((tmp_path / "layer_models" / key / "model.json").read_text())["mechanisms"]
+        assert saved["id"] == "boundary_layer_stratification" and saved["params"]["inv_thickness_1_per_m"] > 0
+    for test, models in summary["table"].items():
+        assert {"tankode_layer_both", "tankode_layer_leave_one_out"} <= set(models)
     for name in ("mhtb_P263968K.png", "mhtb_P263981D.png"):
         assert (tmp_path / name).stat().st_size > 10_000
 
