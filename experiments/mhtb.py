@@ -15,7 +15,9 @@ published prediction. The script
    wall's boundary layer, which the diagnosis cannot name: see ``LAYER``) on both tests and on
    each alone, from the best point of a grid scored on the training tests only, saves each as a
    model (``OUT/layer_models/<tests>``) and applies it with ``tankode predict`` to the test it
-   was not calibrated on.
+   was not calibrated on. These fits stop at 8 iterations, before converging: run to
+   convergence from four starts (``mhtb_multistart.py``) the fit on P263981D predicts P263968K
+   at 2.6 kPa, not step 5's 310 Pa.
 
 Usage: ``python experiments/mhtb.py [--quick] [--out results/mhtb]``
 """

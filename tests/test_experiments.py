@@ -11,10 +11,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(script, out):
+def _run(script, out, timeout_s=600):
     env = dict(os.environ, MPLBACKEND="Agg")
     proc = subprocess.run([sys.executable, str(ROOT / "experiments" / script), "--quick", "--out", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
 
@@ -73,11 +73,11 @@ def test_minibatch_quick(tmp_path):
     assert (tmp_path / "summary.md").read_text().startswith("# Mini-batch study")
 
 
-@pytest.mark.slow  # ~2 minutes even cut to 2 h: three fits of two long stiff runs and two CLI runs
+@pytest.mark.slow  # 13-21 minutes even cut to 2 h: the diagnosis, fits of two long stiff runs, CLI runs
 def test_mhtb_quick(tmp_path):
     if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
         pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
-    _run("mhtb.py", tmp_path)
+    _run("mhtb.py", tmp_path, timeout_s=1800)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert set(summary["table"]) == {"P263968K", "P263981D"}
     for test, models in summary["table"].items():
@@ -157,3 +157,18 @@ def test_information_quick(tmp_path):
     assert slosh["sloshing_share"] == 1.0
     assert slosh["corr_li_wv_window"] < -0.9
     assert slosh["std_ln_h_window"]["h_li"] > 0.3 > slosh["std_ln_h_cumulative"]["h_li"]
+
+
+@pytest.mark.slow
+def test_mhtb_multistart_quick(tmp_path):
+    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
+        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
+    _run("mhtb_multistart.py", tmp_path, timeout_s=1800)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["directions"]) == {"P263981D->P263968K"}
+    for d in summary["directions"].values():
+        assert len(d["fits"]) == 2 and all(f["p_rmse_Pa"] > 0 for f in d["fits"])
+        # the chosen fit is the one with the least training chi2, whatever it predicts
+        assert d["chosen"] == min(range(2), key=lambda i: d["fits"][i]["chi2_train"])
+        assert d["chosen_below_ebm"] == (d["fits"][d["chosen"]]["p_rmse_Pa"] < d["ebm_p_rmse_Pa"])
+    assert (tmp_path / "summary.md").read_text().startswith("# boundary_layer_stratification")
