@@ -83,6 +83,16 @@ def _runs(quick):
     return [r.until(QUICK_UNTIL_S) for r in runs] if quick else runs
 
 
+def _ebm(runs):
+    """The EBM's published prediction of each of ``runs``, by name."""
+    return {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
+
+
+def _p_rmse(run, observations, within=None):
+    """Pressure RMSE [Pa] of ``observations`` at ``run``'s samples (those ``within`` covers, if given)."""
+    return channel_rmse(run, observations, ("p_v_Pa",), within=within)["p_v_Pa"]["rmse"]
+
+
 def _predict(run, closure=None, mechanisms=()):
     return simulate(run, closure, output_dt_s=OUTPUT_DT_S, mechanisms=mechanisms)
 
@@ -171,7 +181,7 @@ def main(argv=None) -> dict:
     config = QUICK if args.quick else FULL
     start = time.perf_counter()
     runs = _runs(args.quick)
-    ebm = {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
+    ebm = _ebm(runs)
 
     # 1. baseline (reference closure, estimated wall heat capacity)
     baseline = {r.name: _predict(r) for r in runs}
@@ -238,7 +248,7 @@ def main(argv=None) -> dict:
     for r in runs:
         pred, entry = _cli_predict(paths["model"], r, out / "predict", args.quick)
         if pred is not None:
-            entry["p_rmse_Pa"] = channel_rmse(r, pred.observations, ("p_v_Pa",))["p_v_Pa"]["rmse"]
+            entry["p_rmse_Pa"] = _p_rmse(r, pred.observations)
         cli[r.name] = entry
         print(f"tankode predict on {r.name}: {entry}", flush=True)
 
@@ -263,7 +273,7 @@ def main(argv=None) -> dict:
             rm[r.name][label] = sc = score(r, solution_observations(sol))
             pred, entry = _cli_predict(model_dir, r, out / "layer_predict" / key, args.quick)
             if pred is not None:
-                entry["p_rmse_Pa"] = channel_rmse(r, pred.observations, ("p_v_Pa",), within=ebm[r.name])["p_v_Pa"]["rmse"]
+                entry["p_rmse_Pa"] = _p_rmse(r, pred.observations, within=ebm[r.name])
             record["predictions"][r.name] = {
                 "p_rmse_Pa": sc["ebm_span"]["p_v_Pa"]["rmse"], "p_rmse_all_samples_Pa": sc["all"]["p_v_Pa"]["rmse"],
                 "ebm_p_rmse_Pa": rm[r.name]["ebm"]["ebm_span"]["p_v_Pa"]["rmse"], "cli_predict": entry}

@@ -20,9 +20,9 @@ import json
 import time
 from pathlib import Path
 
-from mhtb import CHANNELS, DATA, FLUID, LAYER, RUNS, _calibrate_on, _predict, _runs, _values
+from mhtb import LAYER, RUNS, _calibrate_on, _ebm, _p_rmse, _predict, _runs, _values
 from tankode._threads import single_threaded
-from tankode.compare import channel_rmse, read_peer_prediction, solution_observations
+from tankode.compare import solution_observations
 
 # ---- configuration ---------------------------------------------------------------------------
 # (1/delta [1/m], phi, c): mhtb.py's LAYER_GRID thicknesses (2 cm to 2.5 mm), all the wetted
@@ -46,13 +46,13 @@ def main(argv=None) -> dict:
     runs = _runs(args.quick)
     starts = QUICK_STARTS if args.quick else STARTS
     iterations = QUICK_ITERATIONS if args.quick else MAX_ITERATIONS
-    ebm = {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
+    ebm = _ebm(runs)
     summary = {"mechanism": LAYER, "starts": starts, "max_iterations": iterations, "quick": args.quick,
                "directions": {}}
     with single_threaded():
         for train in [r for r in runs if r.name in (args.train or (QUICK_TRAIN if args.quick else RUNS))]:
             held = next(r for r in runs if r is not train)
-            ebm_rmse = channel_rmse(held, ebm[held.name], CHANNELS, within=ebm[held.name])["p_v_Pa"]["rmse"]
+            ebm_rmse = _p_rmse(held, ebm[held.name], within=ebm[held.name])
             fits = []
             for start in starts:
                 t = time.perf_counter()
@@ -61,8 +61,8 @@ def main(argv=None) -> dict:
                 fits.append({
                     "start": start, "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
                     "values": _values(f), "n_simulations": f.n_simulations,
-                    "p_rmse_Pa": channel_rmse(held, sol, CHANNELS, within=ebm[held.name])["p_v_Pa"]["rmse"],
-                    "p_rmse_all_samples_Pa": channel_rmse(held, sol, CHANNELS)["p_v_Pa"]["rmse"],
+                    "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]),
+                    "p_rmse_all_samples_Pa": _p_rmse(held, sol),
                     "wall_s": time.perf_counter() - t,
                 })
                 print(f"{train.name} -> {held.name}: {json.dumps(fits[-1], default=float)}", flush=True)

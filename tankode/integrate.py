@@ -73,8 +73,9 @@ def _lsoda(func: nn.Module, z0: Tensor, ts: Tensor, solver: LSODA) -> Tensor:
     t_np = ts.numpy()
     # The environments do not interact, so the flattened Jacobian is block diagonal with blocks
     # of the state's width: telling LSODA its band makes each finite-difference Jacobian cost
-    # 2 * width - 1 right-hand sides instead of env * width (a batch of 8 MHTB variants: 15
-    # instead of 64), which is what makes batched finite differences in the diagnosis cheap.
+    # 2 * width - 1 right-hand sides instead of env * width (8 variants of a tank with one
+    # mechanism state: 15 instead of 64). The batch still shares one step sequence, so variants
+    # whose trajectories differ still cost more steps than one tank alone.
     width = shape[-1]
     band = {"lband": width - 1, "uband": width - 1} if z0.numel() > 2 * width - 1 else {}
     sol = solve_ivp(rhs, (float(t_np[0]), float(t_np[-1])), z0.reshape(-1).numpy(), method="LSODA",

@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+needs_mhtb = pytest.mark.skipif(not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists(),
+                                reason="the MHTB data (../shared/data/mhtb) is not available")
 
 
 def _run(script, out, timeout_s=600):
@@ -74,9 +76,8 @@ def test_minibatch_quick(tmp_path):
 
 
 @pytest.mark.slow  # 13-21 minutes even cut to 2 h: the diagnosis, fits of two long stiff runs, CLI runs
+@needs_mhtb
 def test_mhtb_quick(tmp_path):
-    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
-        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
     _run("mhtb.py", tmp_path, timeout_s=1800)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert set(summary["table"]) == {"P263968K", "P263981D"}
@@ -119,9 +120,8 @@ def test_mhtb_quick(tmp_path):
 
 
 @pytest.mark.slow
+@needs_mhtb
 def test_mhtb_layer_quick(tmp_path):
-    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
-        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
     _run("mhtb_layer.py", tmp_path)
     rows = json.loads((tmp_path / "summary.json").read_text())
     # per start: both tests calibrated together, then each predicted from the other
@@ -160,9 +160,8 @@ def test_information_quick(tmp_path):
 
 
 @pytest.mark.slow
+@needs_mhtb
 def test_mhtb_multistart_quick(tmp_path):
-    if not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists():
-        pytest.skip("the MHTB data (../shared/data/mhtb) is not available")
     _run("mhtb_multistart.py", tmp_path, timeout_s=1800)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert set(summary["directions"]) == {"P263981D->P263968K"}
