@@ -15,14 +15,9 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from mhtb import CHANNELS, DATA, FLUID, _predict, _runs, _values
+from mhtb import _calibrate_on, _ebm, _p_rmse, _predict, _runs, _values
 from tankode._threads import single_threaded
-from tankode.compare import channel_rmse, read_peer_prediction, solution_observations
-from tankode.diagnosis import Problem, fit
-from tankode.diagnosis.forward import closure_params, mechanism_params
-from tankode.fleet import Fleet
+from tankode.compare import solution_observations
 
 # ---- configuration ---------------------------------------------------------------------------
 MECHANISM = "surface_layer"
@@ -31,14 +26,6 @@ STARTS = {"absent": (0.0, 0.0, 0.0), "1 cm layer": (100.0, 1.0, 1.0 / 18000.0)}
 MAX_ITERATIONS = 8  # as mhtb.py's calibrations
 QUICK_ITERATIONS = 1  # --quick: both tests cut to 2 h (mhtb.py's QUICK_UNTIL_S), one iteration
 # -----------------------------------------------------------------------------------------------
-
-
-def _calibrate(train, start, max_iterations):
-    problem = Problem(Fleet.from_runs(train))
-    params = closure_params() + mechanism_params(MECHANISM)
-    x0 = np.concatenate([np.zeros(4), start])
-    f = fit(problem, params, x0, np.ones(problem.obs.y.shape[:2], bool), max_iterations)
-    return problem.build(f.params, f.values), f
 
 
 def main(argv=None) -> list[dict]:
@@ -50,21 +37,21 @@ def main(argv=None) -> list[dict]:
     out.mkdir(parents=True, exist_ok=True)
     runs = _runs(args.quick)
     iterations = QUICK_ITERATIONS if args.quick else MAX_ITERATIONS
-    ebm = {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
+    ebm = _ebm(runs)
     rows = []
     with single_threaded():
         for label, start in STARTS.items():
             for held in [None, *runs]:
                 t = time.perf_counter()
                 train = [r for r in runs if r is not held]
-                (closure, mechs), f = _calibrate(train, np.array(start), iterations)
+                closure, mechs, f = _calibrate_on(train, MECHANISM, iterations, start)
                 for r in ([held] if held is not None else runs):
                     sol = solution_observations(_predict(r, closure, mechs))
                     rows.append({
                         "start": label, "calibrated_on": "+".join(x.name for x in train), "test": r.name,
-                        "p_rmse_Pa": channel_rmse(r, sol, CHANNELS, within=ebm[r.name])["p_v_Pa"]["rmse"],
-                        "p_rmse_all_samples_Pa": channel_rmse(r, sol, CHANNELS)["p_v_Pa"]["rmse"],
-                        "ebm_p_rmse_Pa": channel_rmse(r, ebm[r.name], CHANNELS, within=ebm[r.name])["p_v_Pa"]["rmse"],
+                        "p_rmse_Pa": _p_rmse(r, sol, within=ebm[r.name]),
+                        "p_rmse_all_samples_Pa": _p_rmse(r, sol),
+                        "ebm_p_rmse_Pa": _p_rmse(r, ebm[r.name], within=ebm[r.name]),
                         "values": _values(f), "fit_status": f.status, "wall_s": time.perf_counter() - t,
                     })
                     print(json.dumps(rows[-1], default=float), flush=True)

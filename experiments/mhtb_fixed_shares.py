@@ -1,0 +1,133 @@
+"""MHTB leave one test out with the physical shares fixed: two fitted parameters (issue 6).
+
+``mhtb_multistart.py`` fits seven parameters on one test (four closure factors and the
+boundary-layer layer's 1/delta, phi, c) and the minimum it reaches on the 90 % fill test
+predicts the 25 % fill test 6.7 times worse than the EBM. Here the model has two free
+parameters only; the rest is fixed by the classic picture of a self-pressurising tank:
+
+* the correlations as published (the reference closure, every factor 1);
+* ``dry_wall_heating`` with ``phi = 1``: the heat load on the dry wall heats the ullage, as in
+  the EBM of these tests, which splits the heat load by wetted and dry area;
+* ``boundary_layer_stratification`` with ``wall_share = 1``: all the wetted wall's heat rises
+  in the boundary layer to the surface layer (Tellep and Harper's stratification picture);
+* fitted: the layer's 1/delta and its renewal share c, from one start.
+
+Then (``ROUNDS`` > 1) each channel's sigma is re-estimated as max(sensor noise_std, RMSE at
+the fit) and the fit repeated from there: the maximum-likelihood fit with an unknown variance
+per channel, the sensors' noise as its floor. The model's error on a channel it cannot follow
+(the ullage temperature: 1.6 K on P263981D against a 0.1 K sensor) then no longer outweighs
+the pressure. The held-out test plays no part in either fit. Honest limit: the shares were
+fixed after a grid of the reference closure on both tests had shown that a share below 1 spoils
+the 25 % fill test (``experiments/README.md``), so this is not a blind test of the choice.
+
+Usage: ``python experiments/mhtb_fixed_shares.py [--quick] [--out results/mhtb_fixed_shares]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mhtb import CHANNELS, LAYER, RUNS, _ebm, _p_rmse, _predict, _runs, _values
+from tankode._threads import single_threaded
+from tankode.compare import channel_rmse, solution_observations
+from tankode.diagnosis import Problem, fit
+from tankode.diagnosis.forward import mechanism_params
+from tankode.fleet import Fleet
+
+# ---- configuration ---------------------------------------------------------------------------
+DRY_WALL = "dry_wall_heating"
+FIXED = {(DRY_WALL, "phi"): 1.0, (LAYER, "wall_share"): 1.0}  # held by a degenerate box
+START = {(LAYER, "inv_thickness_1_per_m"): 50.0, (LAYER, "renewal_share"): 1e-3}  # 2 cm, the grid's c
+MAX_ITERATIONS = 16  # each costs 3 simulations; both directions converged in 4-5 (measured)
+ROUNDS = 3  # fit, then up to two refits with re-estimated sigmas (stops when they move < 5 %)
+QUICK_ITERATIONS = 1  # --quick: both tests cut to 2 h, one iteration per round, two rounds,
+QUICK_ROUNDS = 2  # calibrated on P263981D only (a smoke run)
+QUICK_TRAIN = ("P263981D",)
+# -----------------------------------------------------------------------------------------------
+
+
+def _params():
+    """Free parameters of both mechanisms, the ``FIXED`` ones boxed to their value."""
+    out = []
+    for mid in (DRY_WALL, LAYER):
+        for p in mechanism_params(mid):
+            v = FIXED.get((mid, p.name))
+            out.append(p if v is None else dataclasses.replace(p, lower=v, upper=v))
+    return out
+
+
+def _rounds(train, held, ebm, iterations, rounds):
+    """Fit on ``train`` with sensor sigmas, then refit with sigma = max(sensor, RMSE); one row per round."""
+    params = _params()
+    x = np.array([FIXED.get((p.owner, p.name), START.get((p.owner, p.name), 0.0)) for p in params])
+    sensor = dict(train.noise_std)
+    sigma = dict(sensor)
+    rows = []
+    for k in range(rounds):
+        t = time.perf_counter()
+        problem = Problem(Fleet.from_runs([train.replace(noise_std=sigma)]))
+        f = fit(problem, params, x, np.ones(problem.obs.y.shape[:2], bool), iterations)
+        x = f.values
+        closure, mechs = problem.build(f.params, f.values)
+        own = channel_rmse(train, solution_observations(_predict(train, closure, mechs)), CHANNELS)
+        sol = solution_observations(_predict(held, closure, mechs))
+        rows.append({"round": k, "sigma": sigma, "values": _values(f), "std": dict(zip(_values(f), f.std.tolist())),
+                     "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
+                     "train_rmse": {c: v["rmse"] for c, v in own.items()},
+                     "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]), "p_rmse_all_samples_Pa": _p_rmse(held, sol),
+                     "wall_s": time.perf_counter() - t})
+        print(f"{train.name} -> {held.name}: {json.dumps(rows[-1], default=float)}", flush=True)
+        new = {c.rsplit("_", 1)[0]: max(sensor[c.rsplit("_", 1)[0]], v["rmse"]) for c, v in own.items()}
+        if all(abs(new[c] / sigma[c] - 1.0) < 0.05 for c in new):
+            break
+        sigma = {**sigma, **new}
+    return rows
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="both tests cut to 2 h, one iteration, two rounds, P263981D only")
+    ap.add_argument("--out", default="results/mhtb_fixed_shares")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = _runs(args.quick)
+    ebm = _ebm(runs)
+    summary = {"fixed": {f"{m}.{n}": v for (m, n), v in FIXED.items()},
+               "start": {f"{m}.{n}": v for (m, n), v in START.items()}, "quick": args.quick, "directions": {}}
+    with single_threaded():
+        for train in [r for r in runs if r.name in (QUICK_TRAIN if args.quick else RUNS)]:
+            held = next(r for r in runs if r is not train)
+            rows = _rounds(train, held, ebm, QUICK_ITERATIONS if args.quick else MAX_ITERATIONS,
+                           QUICK_ROUNDS if args.quick else ROUNDS)
+            ebm_rmse = _p_rmse(held, ebm[held.name], within=ebm[held.name])
+            summary["directions"][f"{train.name}->{held.name}"] = {
+                "rounds": rows, "ebm_p_rmse_Pa": ebm_rmse, "below_ebm": rows[-1]["p_rmse_Pa"] < ebm_rmse}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    (out / "summary.md").write_text(_markdown(summary))
+    print((out / "summary.md").read_text())
+    return summary
+
+
+def _markdown(s) -> str:
+    lines = ["# MHTB leave one test out, shares fixed (dry wall 1, wall share 1), 1/delta and c fitted", "",
+             "| calibrated -> predicted | round (sigma p, T_v, T_l) | 1/delta [1/m], c | status | "
+             "p RMSE [Pa] (all samples) | EBM [Pa] |", "|---|---|---|---|---|---|"]
+    for key, d in s["directions"].items():
+        for r in d["rounds"]:
+            v = r["values"]
+            sig = ", ".join(f"{x:.3g}" for x in r["sigma"].values())
+            lines.append(f"| {key} | {r['round']} ({sig}) | {v[LAYER + '.inv_thickness_1_per_m']:.4g}, "
+                         f"{v[LAYER + '.renewal_share']:.3g} | {r['fit_status']} | {r['p_rmse_Pa']:.0f} "
+                         f"({r['p_rmse_all_samples_Pa']:.0f}) | {d['ebm_p_rmse_Pa']:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()
