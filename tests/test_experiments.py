@@ -171,3 +171,23 @@ def test_mhtb_multistart_quick(tmp_path):
         assert d["chosen"] == min(range(2), key=lambda i: d["fits"][i]["chi2_train"])
         assert d["chosen_below_ebm"] == (d["fits"][d["chosen"]]["p_rmse_Pa"] < d["ebm_p_rmse_Pa"])
     assert (tmp_path / "summary.md").read_text().startswith("# boundary_layer_stratification")
+
+
+@pytest.mark.slow
+@needs_mhtb
+def test_mhtb_fixed_shares_quick(tmp_path):
+    _run("mhtb_fixed_shares.py", tmp_path, timeout_s=1800)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    (d,) = summary["directions"].values()
+    first, second = d["rounds"]
+    # the fixed shares stay where their degenerate boxes hold them, with no uncertainty
+    for r in (first, second):
+        assert r["values"]["dry_wall_heating.phi"] == 1.0 and r["std"]["dry_wall_heating.phi"] == 0.0
+        assert r["values"]["boundary_layer_stratification.wall_share"] == 1.0
+    # round 1 weighs each channel by max(sensor noise, round 0's RMSE on the training test)
+    sensor = {"p_v": 300.0, "T_v": 0.1, "T_l": 0.02}
+    assert first["sigma"] == sensor
+    for ch, rmse in first["train_rmse"].items():
+        key = ch.rsplit("_", 1)[0]
+        assert second["sigma"][key] == pytest.approx(max(sensor[key], rmse))
+    assert d["below_ebm"] == (second["p_rmse_Pa"] < d["ebm_p_rmse_Pa"])
