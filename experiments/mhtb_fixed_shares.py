@@ -81,13 +81,15 @@ def _rounds(train, held, ebm, iterations, rounds):
         closure, mechs = problem.build(f.params, f.values)
         own = channel_rmse(train, solution_observations(_predict(train, closure, mechs)), CHANNELS)
         sol = solution_observations(_predict(held, closure, mechs))
-        rows.append({"round": k, "sigma": sigma, "values": _values(f), "std": dict(zip(_values(f), f.std.tolist())),
+        values = _values(f)
+        rows.append({"round": k, "sigma": sigma, "values": values, "std": dict(zip(values, f.std.tolist())),
                      "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
                      "train_rmse": {c: v["rmse"] for c, v in own.items()},
                      "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]), "p_rmse_all_samples_Pa": _p_rmse(held, sol),
                      "wall_s": time.perf_counter() - t})
         print(f"{train.name} -> {held.name}: {json.dumps(rows[-1], default=float)}", flush=True)
-        new = {c.rsplit("_", 1)[0]: max(sensor[c.rsplit("_", 1)[0]], v["rmse"]) for c, v in own.items()}
+        keys = {c: c.rsplit("_", 1)[0] for c in own}  # channel -> its noise_std key ("p_v_Pa" -> "p_v")
+        new = {keys[c]: max(sensor[keys[c]], v["rmse"]) for c, v in own.items()}
         if all(abs(new[c] / sigma[c] - 1.0) < 0.05 for c in new):
             break
         sigma = {**sigma, **new}

@@ -1,7 +1,5 @@
 """The paper's environments on the real-fluid surrogate: behaviour, conservation, batching."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -13,6 +11,8 @@ from tankode.closures import ReferenceClosure
 from tankode.run import read_run
 from tankode.simulate import simulate
 from tankode.state import STATE_NAMES
+
+from mhtb_data import MHTB, needs_mhtb
 
 
 @pytest.fixture(scope="module")
@@ -84,10 +84,7 @@ def test_batched_fleet_matches_single_runs():
         assert torch.allclose(both.observations[e], one.observations[0], rtol=1e-5, atol=1e-6)
 
 
-MHTB = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mhtb"
-
-
-@pytest.mark.skipif(not MHTB.exists(), reason="shared MHTB data not beside the project")
+@needs_mhtb
 def test_stiff_batch_shares_lsoda_jacobians_and_matches_single_runs():
     # MHTB's light aluminium wall makes the ODE stiff, so LSODA switches to BDF and estimates
     # Jacobians by finite differences. The environments do not interact; with the block band

@@ -1,14 +1,12 @@
 """The command line: simulate cases and measured runs, round trip, clear errors."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from tankode.cli import build_parser, main
 from tankode.run import read_run
 
-MHTB = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mhtb"
+from mhtb_data import MHTB, needs_mhtb
 
 
 def test_simulate_case_writes_run_csv_and_figure(tmp_path, capsys):
@@ -36,7 +34,7 @@ def test_simulate_round_trip_of_its_own_output(tmp_path):
     np.testing.assert_allclose(a.observations.values, b.observations.values, rtol=1e-9)
 
 
-@pytest.mark.skipif(not MHTB.exists(), reason="shared MHTB data not beside the project")
+@needs_mhtb
 @pytest.mark.parametrize("name", ["P263968K", "P263981D"])
 def test_simulate_measured_mhtb_runs(tmp_path, capsys, name):
     assert main(["simulate", str(MHTB / f"{name}.json"), "--out", str(tmp_path)]) == 0

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from mhtb_data import needs_mhtb
+
 ROOT = Path(__file__).resolve().parents[1]
-needs_mhtb = pytest.mark.skipif(not (ROOT.parent / "shared" / "data" / "mhtb" / "P263968K.json").exists(),
-                                reason="the MHTB data (../shared/data/mhtb) is not available")
 
 
 def _run(script, out, timeout_s=600):

@@ -24,8 +24,7 @@ from tankode.run import (
 )
 from tankode.schedule import Schedule, ScheduleError, merge_breakpoints
 
-MHTB = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mhtb"
-needs_mhtb = pytest.mark.skipif(not MHTB.is_dir(), reason=f"shared MHTB data folder {MHTB} is absent")
+from mhtb_data import MHTB, needs_mhtb
 
 
 # ============================================================================ real data
