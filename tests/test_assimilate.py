@@ -100,7 +100,20 @@ def _cli(*args, **kw):
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **kw)
 
 
-def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
+def _cli_here(capsys, *args):
+    """``tankode ARGS`` in this process: (exit code, what it printed)."""
+    from tankode.cli import main
+
+    capsys.readouterr()
+    try:
+        code = main(list(args))
+    except SystemExit as stop:  # argparse's own refusals
+        code = stop.code
+    out = capsys.readouterr()
+    return code, out.out + out.err
+
+
+def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path, capsys):
     data = _data(_short_run(240.0))
     json_path, _ = write_run(data, tmp_path / "data")
     args = [str(json_path), "--window", "60", "--iters", "3", "--batch", "0.5", "--quiet"]
@@ -118,16 +131,17 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
     killed.wait()
     assert killed.returncode == -signal.SIGKILL
     assert not (tmp_path / "k" / "weights.pt").exists()  # really interrupted before the end
-    again = _cli("assimilate", *args, "--out", str(tmp_path / "k"))
-    out_again, _ = again.communicate(timeout=600)
-    assert again.returncode == 2 and b"--resume" in out_again  # refuses to silently restart
+    # The refusals and the prediction run in this process: a fresh interpreter costs ~6 s of
+    # imports (CoolProp alone 3 s), and only the kill and the resume need one.
+    code, out_again = _cli_here(capsys, "assimilate", *args, "--out", str(tmp_path / "k"))
+    assert code == 2 and "--resume" in out_again  # refuses to silently restart
     # ...and to resume into an agent with other inputs, or to mix --inputs with --init.
-    other = _cli("assimilate", *args, "--out", str(tmp_path / "k"), "--resume", "--inputs", "extended")
-    out_other, _ = other.communicate(timeout=600)
-    assert other.returncode == 2 and b"another agent" in out_other, out_other.decode()
-    both = _cli("assimilate", *args, "--out", str(tmp_path / "b"), "--inputs", "extended", "--init", str(tmp_path / "ref"))
-    out_both, _ = both.communicate(timeout=600)
-    assert both.returncode == 2 and b"--init" in out_both, out_both.decode()
+    code, out_other = _cli_here(capsys, "assimilate", *args, "--out", str(tmp_path / "k"), "--resume",
+                                "--inputs", "extended")
+    assert code == 2 and "another agent" in out_other, out_other
+    code, out_both = _cli_here(capsys, "assimilate", *args, "--out", str(tmp_path / "b"), "--inputs", "extended",
+                               "--init", str(tmp_path / "ref"))
+    assert code == 2 and "--init" in out_both, out_both
     resumed = _cli("assimilate", *args, "--out", str(tmp_path / "k"), "--resume")
     out_res, _ = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, out_res.decode()
@@ -137,9 +151,8 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path):
     for k in a:
         assert torch.equal(a[k], b[k]), k
     # ...and the prediction of the saved model works from the run's initial state and inputs.
-    p = _cli("predict", str(tmp_path / "k"), str(json_path), "--out", str(tmp_path / "pred"))
-    out_p, _ = p.communicate(timeout=600)
-    assert p.returncode == 0, out_p.decode()
+    code, out_p = _cli_here(capsys, "predict", str(tmp_path / "k"), str(json_path), "--out", str(tmp_path / "pred"))
+    assert code == 0, out_p
     pred = read_run(tmp_path / "pred" / "short.json")
     assert len(pred.observations) > 0
 
