@@ -145,7 +145,8 @@ def cmd_predict(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    from .diagnosis import DEFAULT_CANDIDATES, DiagnosisConfig, HoldOutTail, LeaveOneRunOut, diagnose, write_report
+    from .diagnosis import (DEFAULT_CANDIDATES, DiagnosisConfig, HoldOutTail, LeaveOneRunOut, ModelError, SensorNoise,
+                            diagnose, write_report)
     from .run import read_run
     from .saved import load_model
 
@@ -161,7 +162,8 @@ def cmd_diagnose(args) -> int:
     elif args.split == "run":
         split = LeaveOneRunOut()
     candidates = tuple(args.candidates) if args.candidates else DEFAULT_CANDIDATES
-    config = DiagnosisConfig(candidates=candidates, split=split)
+    weighting = ModelError() if args.weighting == "model-error" else SensorNoise()
+    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting)
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
     if d.cause:
@@ -248,6 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
     dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
     dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer and boundary_layer_stratification)")
+    dg.add_argument("--weighting", choices=("sensor", "model-error"), default="sensor",
+                    help="weigh residuals by the sensor noise, or by the calibrated baseline's RMS residual where it "
+                         "misses a channel beyond chance (real tanks: a channel the model cannot follow stops "
+                         "dominating the evidence)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.set_defaults(func=cmd_diagnose)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")

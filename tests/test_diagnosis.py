@@ -223,3 +223,47 @@ def test_a_refit_whose_one_step_start_fails_restarts_from_zero_and_says_so():
     (c,) = [c for c in d.ranking if c.mechanism == "surface_layer"]
     assert c.refit and any("refitted from 0 instead" in n for n in c.notes), c.notes
     assert c.heldout_gain > 0.3  # the restarted fit explains much of the layer's signature
+
+
+# -- weighting -----------------------------------------------------------------------------------
+
+
+def test_model_error_weighting_raises_sigma_only_where_the_residuals_exceed_the_noise():
+    from tankode.diagnosis import ModelError, Observed, SensorNoise
+
+    rng = np.random.default_rng(3)
+    T, sigma = 400, np.array([[2000.0, 0.2, 0.2, 0.2, np.nan]])  # (env, 5); the level is not measured
+    y = rng.normal(size=(1, T, 5)) * np.nan_to_num(sigma)[:, None, :]
+    y[..., 4] = np.nan
+    obs = Observed(np.arange(1.0, T + 1), y, sigma, np.full((1, T), "hold", dtype=object), ("r",))
+    pred = np.zeros((1, T, 5))
+    pred[..., 1] += 5 * 0.2  # a 5-sigma bias on T_v: sigma becomes sqrt(1 + 25) of the sensor's
+    pred[..., 2] += 0.2 * rng.normal(size=T) * 4  # residuals 4.1 sigma RMS on T_l
+    mask = np.ones((1, T), bool)
+    got = ModelError().sigma(obs, pred, mask)
+    assert got[0, 0] == sigma[0, 0] and got[0, 3] == sigma[0, 3]  # noise alone: the sensor's, exactly
+    assert got[0, 1] == pytest.approx(0.2 * np.sqrt(26), rel=0.1)
+    assert got[0, 2] == pytest.approx(0.2 * np.sqrt(17), rel=0.1)
+    assert np.isnan(got[0, 4])
+    assert SensorNoise().sigma(obs, pred, mask) is sigma
+    # a small excess on few samples is chance, not model error
+    few = np.zeros((1, T), bool)
+    few[0, :5] = True
+    # (1.5 sigma RMS on 5 samples: chi2 11.3 against the 0.999 quantile 20.5)
+    assert ModelError().sigma(obs, y + 1.5 * np.nan_to_num(sigma)[:, None, :], few)[0, 0] == 2000.0
+    with pytest.raises(ValueError, match="significance"):
+        ModelError(significance=0.0)
+
+
+def test_model_error_weighting_keeps_the_sensor_weights_where_the_baseline_fits_and_raises_them_where_it_misses():
+    from tankode.diagnosis import ModelError, calibrate
+
+    config = DiagnosisConfig(weighting=ModelError())
+    problem, _, base, _ = calibrate([_data("case1", None, 0.0, 11)], config=config)
+    np.testing.assert_array_equal(problem.obs.sigma, problem.sensor_obs.sigma)
+    # 200 W into the ullage, more than the closure's multipliers can take up
+    problem, _, base, _ = calibrate([_data("case1", "heat_leak_vapor", 200.0, 11)], config=config)
+    raised = problem.obs.sigma[0] > problem.sensor_obs.sigma[0]
+    assert raised.any(), problem.obs.sigma
+    # refitted with the raised weights, the baseline's residuals are about one sigma each
+    assert base.chi2 < 3 * base.n_data, (base.chi2, base.n_data, problem.obs.sigma)

@@ -46,6 +46,7 @@ from .evidence import Score, bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
 from .forward import Problem, closure_params, mechanism_params
 from .residuals import heldout_terms, loss_from_terms, residual_report
+from .weighting import ModelError, SensorNoise
 
 
 @dataclass(frozen=True)
@@ -135,6 +136,7 @@ class DiagnosisConfig:
     thresholds: Thresholds = Thresholds()
     seed: int = 0
     stable_mixing: bool = False
+    weighting: SensorNoise | ModelError = SensorNoise()
 
     def __post_init__(self):
         unknown = set(self.candidates) - set(MECHANISMS)
@@ -285,6 +287,12 @@ def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisCon
     names = [p.name for p in params]
     staged = ((names.index("stable_mixing"), 1.0),) if config.stable_mixing else ()
     base, held = folds.run(params, np.zeros(len(params)), config.max_iterations, staged=staged)
+    for _ in range(config.weighting.rounds):
+        sigma = config.weighting.sigma(problem.sensor_obs, base.pred, folds.evidence_mask)
+        if np.allclose(sigma, problem.obs.sigma, rtol=0.05, equal_nan=True):
+            break
+        problem.weigh(sigma)
+        base, held = folds.run(params, base.values, config.max_iterations, staged=staged)
     return problem, folds, base, held
 
 
@@ -349,7 +357,7 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
                 "closure_factors": _factors(extended_fit),
                 "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
-                "residuals": residual_report(obs, ext_pred, folds.heldout),
+                "residuals": residual_report(problem.sensor_obs, ext_pred, folds.heldout),
                 "fitted_on": "all data (calibration and held-out) for the saved model; held-out figures from "
                              "the calibration-only fit",
             }
@@ -357,8 +365,11 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         baseline = {
             "closure_factors": _factors(base), "chi2": base.chi2, "n_observations": base.n_data,
             "heldout_loss": base_loss, "heldout_loss_by_channel": dict(zip(CHANNELS, base_by.tolist())),
-            "residuals": residual_report(obs, base_pred, folds.heldout),
+            "residuals": residual_report(problem.sensor_obs, base_pred, folds.heldout),
             "fit_status": base.status, "failed_starts": folds.failed_starts,
+            "weighting": config.weighting.describe(),
+            "sigma": {name: {c: float(v) for c, v in zip(CHANNELS, row) if np.isfinite(v)}
+                      for name, row in zip(obs.run_names, obs.sigma)},
         }
         unexplained = _unexplained((extended or baseline)["residuals"])
     return Diagnosis(

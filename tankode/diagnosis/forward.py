@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -86,6 +87,7 @@ class Problem:
         self.fixed = tuple(fixed_mechanisms)
         self.solver = solver
         self.obs = Observed.from_fleet(fleet)
+        self.sensor_obs = self.obs  # ``obs`` with the runs' noise_std, whatever ``weigh`` did
         self.t_eval = np.concatenate([[fleet.t0_s], self.obs.t_s])
         self.n_simulations = 0
         self._fleets = {1: fleet}
@@ -146,6 +148,13 @@ class Problem:
         if values.ndim == 2:
             return out.reshape(len(values), self.fleet.n_env, *out.shape[1:])
         return out
+
+    def weigh(self, sigma: np.ndarray) -> None:
+        """Weigh residuals by ``sigma`` ``(env, 5)`` from now on (``tankode.diagnosis.weighting``)."""
+        sigma = np.asarray(sigma, float)
+        if sigma.shape != self.sensor_obs.sigma.shape or not np.all((sigma > 0) | np.isnan(self.sensor_obs.sigma)):
+            raise ValueError(f"sigma must be positive, of shape {self.sensor_obs.sigma.shape}; got {sigma}")
+        self.obs = dataclasses.replace(self.sensor_obs, sigma=np.where(np.isnan(self.sensor_obs.sigma), np.nan, sigma))
 
     def normalised_residuals(self, pred: np.ndarray) -> np.ndarray:
         """``(pred - y) / sigma``, ``(..., env, T, 5)``, NaN where nothing was measured."""

@@ -104,8 +104,14 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
         L.append(f"| {i} | `{c.mechanism}` | {est} | {c.score:.3g} | {ic} | {gain} | {expl} | {verdict} |")
     notes = [f"Note on `{c.mechanism}`: {n}." for c in d.ranking for n in c.notes]
     L += [""] + notes if notes else []
-    L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", "",
-          "| channel | baseline | extended |", "|---|---|---|"]
+    L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", ""]
+    weighting = d.baseline.get("weighting", "sensor noise")
+    if weighting != "sensor noise":
+        sig = "; ".join(f"{run}: " + ", ".join(f"{c} {v:.3g}" for c, v in chans.items())
+                        for run, chans in d.baseline["sigma"].items())
+        L += [f"Residuals weighed by {weighting}: sigma {sig}. The evidence above and the held-out loss are "
+              "in these units; the residual tables below stay in units of the sensor noise.", ""]
+    L += ["| channel | baseline | extended |", "|---|---|---|"]
     ext = d.extended["heldout_loss_by_channel"] if d.extended else {}
     for ch in CHANNELS:
         b = d.baseline["heldout_loss_by_channel"][ch]
