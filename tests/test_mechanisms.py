@@ -259,3 +259,50 @@ def test_boundary_layer_stratification_follows_its_equation_and_conserves_energy
                                     fl.H_l_m, fl.A_wl_m2 / fl.H_l_m)
     steady = float((phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / (c * pl.cp[0] * flow[0]))
     assert float(end[0, 7]) == pytest.approx(steady, rel=0.05) and float(end[0, 7]) > 0.1
+
+
+def test_growing_layer_follows_its_equations_and_its_excess_energy_is_the_delivered_heat():
+    from scipy.integrate import cumulative_trapezoid
+
+    from tankode.mechanisms.boundary_layer import eckert_jackson_flow_kg_s
+
+    inv0, phi, c = 50.0, 0.8, 0.5  # a 2 cm layer at the start, half the boundary layer's flow piles up under it
+    layer = make_mechanism("growing_layer", inv_thickness_1_per_m=inv0, wall_share=phi, entrainment_share=c)
+    model, s0, geom = _tank([layer])
+    assert list(model.state_names[-2:]) == ["growing_layer.dT_layer_K", "growing_layer.grown_m"]
+    f = Forcing.rest(1, Q_aw_W=300.0)
+    s0 = s0.clone()
+    s0[0, 4] += 2.0
+    s = torch.cat([s0, torch.tensor([[0.4, 0.03]], dtype=torch.float64)], dim=-1)  # 0.4 K warm, 3 cm grown: 5 cm
+    fl, _, pl = model.fluxes(s, f)
+    rho = s0[0, 1] / s0[0, 6]
+    flow = eckert_jackson_flow_kg_s(rho, pl.mu, pl.cp, pl.k, pl.beta, s0[:, 4] - fl.T_l_K, fl.H_l_m,
+                                    fl.A_wl_m2 / fl.H_l_m)
+    growth = float(c * flow[0] / (rho * fl.A_i_m2[0]))
+    delta = 1 / inv0 + 0.03
+    C_s = float(rho * pl.cp[0] * fl.A_i_m2[0]) * delta
+    d = model(torch.tensor(0.0), s, f)[0]
+    assert float(d[8]) == pytest.approx(growth, rel=1e-12)
+    assert float(d[7]) == pytest.approx(float(phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / C_s - growth / delta * 0.4, rel=1e-12)
+    assert growth / delta * 0.4 > 0.1 * abs(float(d[7]))  # the dilution by growth counts; not vacuous
+    # Integrated: the tank's energy changes only by the ambient heat; the layer thickens; its
+    # excess energy rho c_p A_i delta x is the heat delivered to it, the integral of phi Q_wl - Q_li
+    # (within 2 %: rho, c_p and A_i are taken as constant there, as the mechanism does).
+    t, traj = _run(model, s0, geom, f, n=361)
+    E = model.total_energy_J(traj[None])[0]
+    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    assert float(traj[-1, 8]) > 0.01  # grown by more than a centimetre in half an hour
+    src = []
+    for row in traj:
+        fr, _, pr = model.fluxes(row[None], f)
+        src.append(float(phi * fr.Q_wl_W[0] - fr.Q_li_W[0]))
+    delivered = cumulative_trapezoid(np.array(src), t.numpy(), initial=0.0)[-1]
+    end = traj[-1]
+    fr, _, pr = model.fluxes(end[None], f)
+    excess = float(end[1] / end[6] * pr.cp[0] * fr.A_i_m2[0] * (1 / inv0 + end[8]) * end[7])
+    assert excess == pytest.approx(delivered, rel=0.02) and delivered > 0
+    # absent (1/delta_0 = 0): both states stay at 0 whatever the other parameters
+    absent = make_mechanism("growing_layer", wall_share=1.0, entrainment_share=1.0)
+    model0, _, _ = _tank([absent])
+    d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
+    assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0

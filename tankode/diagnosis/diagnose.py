@@ -94,7 +94,7 @@ class Thresholds:
 # boundary-layer variant shares its parameters' structure, and the wall-fed source of both has no
 # slope at 0, where the score test looks. They are considered when asked for (``candidates``,
 # ``--candidates``), with a fit started from a layer.
-OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification")
+OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
 
