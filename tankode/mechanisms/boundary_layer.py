@@ -93,15 +93,18 @@ class BoundaryLayerStratification(SurfaceLayer):
     )
     signature = "pressure above the model growing over hours, bulk liquid temperature unchanged"
 
-    def state_derivative(self, z, s, forcing, fluxes, liquid):
-        x = z[..., 0]  # (env,)
+    def _source_and_flow(self, x, s, fluxes, liquid):
+        """``(phi Q_wl - Q_li) / (rho_l c_p,l A_i)`` (K m/s) and ``c mdot_bl / (rho_l A_i)`` (m/s), each ``(env,)``."""
         rho_l = s[..., 1] / s[..., 6]
-        inv_delta = self.param(0, x)
-        source = (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)  # K m/s
+        source = (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)
         flow = eckert_jackson_flow_kg_s(rho_l, liquid.mu, liquid.cp, liquid.k, liquid.beta,
                                         s[..., 4] - fluxes.T_l_K, fluxes.H_l_m, fluxes.A_wl_m2 / fluxes.H_l_m)
-        renewal = self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)  # m/s
-        return torch.stack([inv_delta * (source - renewal * x)], dim=-1)
+        return source, self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)
+
+    def state_derivative(self, z, s, forcing, fluxes, liquid):
+        x = z[..., 0]  # (env,)
+        source, renewal = self._source_and_flow(x, s, fluxes, liquid)
+        return torch.stack([self.param(0, x) * (source - renewal * x)], dim=-1)
 
 
 __all__ = ["BoundaryLayerStratification", "eckert_jackson_flow_kg_s"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from .base import Param, StateVar
-from .boundary_layer import BoundaryLayerStratification, eckert_jackson_flow_kg_s
+from .boundary_layer import BoundaryLayerStratification
 
 
 class GrowingLayer(BoundaryLayerStratification):
@@ -60,13 +60,9 @@ class GrowingLayer(BoundaryLayerStratification):
 
     def state_derivative(self, z, s, forcing, fluxes, liquid):
         x, grown = z[..., 0], z[..., 1]  # (env,)
-        rho_l = s[..., 1] / s[..., 6]
         inv0 = self.param(0, x)
         inv_delta = inv0 / (1.0 + inv0 * grown)  # 1/(delta_0 + grown); 0 when absent
-        source = (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)  # K m/s
-        flow = eckert_jackson_flow_kg_s(rho_l, liquid.mu, liquid.cp, liquid.k, liquid.beta,
-                                        s[..., 4] - fluxes.T_l_K, fluxes.H_l_m, fluxes.A_wl_m2 / fluxes.H_l_m)
-        growth = self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)  # m/s
+        source, growth = self._source_and_flow(x, s, fluxes, liquid)  # K m/s, m/s
         # absent (1/delta_0 = 0): the layer is the whole liquid, nothing to grow or track
         growth = torch.where(inv0 > 0, growth, torch.zeros_like(growth))
         return torch.stack([inv_delta * (source - growth * x), growth], dim=-1)
