@@ -2,7 +2,8 @@
 
 ``diagnose(runs) -> Diagnosis`` runs every step; ``write_report(diagnosis, out_dir)`` writes
 ``report.json``, ``report.md``, the figures and the extended model. The steps are public for
-notebooks: ``calibrate``, ``residual_report``, ``score_tests``, ``bootstrap_gain``.
+notebooks: ``calibrate``, ``residual_report``, ``score_tests``, ``bootstrap_gain``. How residuals are
+weighed is a strategy: ``SensorNoise()`` (default) or ``ModelError()``.
 """
 
 from .data import HoldOutTail, LeaveOneRunOut, Observed

@@ -5,7 +5,8 @@ Steps (each a function, so a notebook can run them one at a time; ``diagnose`` r
 1. ``calibrate``: the baseline closure (four multipliers on the base closure's coefficients,
    and optionally the share of natural convection under a stably stratified liquid,
    ``closure_params``) is fitted to the calibration part of the data; the rest is held out (``HoldOutTail``: the
-   last 30 % of each run, or ``LeaveOneRunOut``).
+   last 30 % of each run, or ``LeaveOneRunOut``). Residuals are weighed by the sensor noise, or
+   (``ModelError``, opt-in) by the baseline's own error where it is larger.
 2. ``residual_report``: bias, RMS, whiteness and 3-sigma spans per channel and phase.
 3. ``score_tests``: every candidate mechanism is ranked by Rao's score test at 0.
 4. ``refit``: the leading candidates are fitted jointly with the closure; the evidence is the
@@ -273,7 +274,13 @@ class _Folds:
 
 
 def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConfig = DiagnosisConfig()):
-    """Calibrate the baseline; returns ``(problem, folds, baseline_fit, heldout_pred)`` for the next steps."""
+    """Calibrate the baseline; returns ``(problem, folds, baseline_fit, heldout_pred)`` for the next steps.
+
+    With ``config.weighting = ModelError()`` the calibrated baseline's residuals then set each
+    channel's sigma (``problem.weigh``) and the baseline is calibrated again from where it
+    stopped, until the sigmas move by less than 5 % or ``rounds`` re-weightings are done; the
+    returned ``problem`` weighs by them from then on (``problem.sensor_obs`` keeps the sensors').
+    """
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs)
     problem = Problem(fleet, base_closure, tuple(fixed_mechanisms))
     folds = _Folds(problem, _split(config, fleet), config)
