@@ -267,3 +267,21 @@ def test_model_error_weighting_keeps_the_sensor_weights_where_the_baseline_fits_
     assert raised.any(), problem.obs.sigma
     # refitted with the raised weights, the baseline's residuals are about one sigma each
     assert base.chi2 < 3 * base.n_data, (base.chi2, base.n_data, problem.obs.sigma)
+
+
+def test_report_says_which_weights_it_used_and_keeps_residuals_in_sensor_units(tmp_path):
+    from tankode.diagnosis import ModelError
+
+    data = _data("case1", "heat_leak_vapor", 200.0, 11).until(1200.0)  # 20 minutes keep it cheap
+    config = DiagnosisConfig(candidates=("heat_leak_vapor",), refit_top=1, max_iterations=6, max_iterations_refit=4,
+                             n_boot=200, weighting=ModelError())
+    d = diagnose([data], config=config)
+    assert d.baseline["weighting"].startswith("model error")
+    raised = {c: v for c, v in d.baseline["sigma"]["case1"].items() if v > data.noise_std[c.rsplit("_", 1)[0]]}
+    assert raised, d.baseline["sigma"]
+    # the residual tables stay in units of the sensors: the raised channels are off by more than one sensor sigma
+    for c in raised:
+        assert d.baseline["residuals"]["runs"]["case1"][c]["calibration"]["rms_sigma"] > 1.5
+    paths = write_report(d, tmp_path, data.fluid)
+    assert "Residuals weighed by model error" in paths["md"].read_text()
+    assert json.loads(paths["json"].read_text())["baseline"]["sigma"] == d.baseline["sigma"]
