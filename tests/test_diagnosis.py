@@ -253,6 +253,8 @@ def test_model_error_weighting_raises_sigma_only_where_the_residuals_exceed_the_
     assert ModelError().sigma(obs, y + 1.5 * np.nan_to_num(sigma)[:, None, :], few)[0, 0] == 2000.0
     with pytest.raises(ValueError, match="significance"):
         ModelError(significance=0.0)
+    with pytest.raises(ValueError, match=r"weighting must be SensorNoise\(\) or ModelError\(\)"):
+        DiagnosisConfig(weighting="model-error")
 
 
 def test_model_error_weighting_keeps_the_sensor_weights_where_the_baseline_fits_and_raises_them_where_it_misses():

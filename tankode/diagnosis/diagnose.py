@@ -87,12 +87,12 @@ class Thresholds:
     alternative_bic: float = 10.0
 
 
-# Every mechanism but the two surface layers with a state of their own (``surface_layer``,
-# ``boundary_layer_stratification``). Hidden in tankode's cases ``surface_layer`` is not found
+# Every mechanism but the three surface layers with states of their own (``surface_layer``,
+# ``boundary_layer_stratification``, ``growing_layer``). Hidden in tankode's cases ``surface_layer`` is not found
 # reliably: its three parameters trade off against each other and its settled excess looks like
 # ``thermal_stratification``'s constant one (case 3: the constant offset is named instead; case 1:
 # ranked first with the thickness within 9 % but estimate/std 0.5; experiments/README.md); the
-# boundary-layer variant shares its parameters' structure, and the wall-fed source of both has no
+# boundary-layer variants share its parameters' structure, and the wall-fed source of all has no
 # slope at 0, where the score test looks. They are considered when asked for (``candidates``,
 # ``--candidates``), with a fit started from a layer.
 OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer")
@@ -147,6 +147,8 @@ class DiagnosisConfig:
             raise ValueError(f"refit_top must be >= 1 or None, got {self.refit_top}")
         if not self.block_s > 0:
             raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
+        if not isinstance(self.weighting, (SensorNoise, ModelError)):
+            raise ValueError(f"weighting must be SensorNoise() or ModelError(), got {self.weighting!r}")
 
 
 @dataclass

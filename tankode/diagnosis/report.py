@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 from ..saved import save_model  # noqa: E402
 from .data import CHANNELS  # noqa: E402
 from .diagnose import Diagnosis  # noqa: E402
+from .weighting import SensorNoise  # noqa: E402
 
 _UNITS = {"p_v_Pa": ("p_v", "bar", 1e-5), "T_v_K": ("T_v", "K", 1.0), "T_l_K": ("T_l", "K", 1.0),
           "T_w_K": ("T_w", "K", 1.0), "H_l_m": ("H_l", "mm", 1e3)}
@@ -105,8 +106,8 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     notes = [f"Note on `{c.mechanism}`: {n}." for c in d.ranking for n in c.notes]
     L += [""] + notes if notes else []
     L += ["", "## Held-out loss per channel (0.5 = at the noise floor)", ""]
-    weighting = d.baseline.get("weighting", "sensor noise")
-    if weighting != "sensor noise":
+    weighting = d.baseline["weighting"]
+    if weighting != SensorNoise().describe():
         sig = "; ".join(f"{run}: " + ", ".join(f"{c} {v:.3g}" for c, v in chans.items())
                         for run, chans in d.baseline["sigma"].items())
         L += [f"Residuals weighed by {weighting}: sigma {sig}. The evidence above and the held-out loss are "
