@@ -12,15 +12,16 @@ parameters only; the rest is fixed by the classic picture of a self-pressurising
   in the boundary layer to the surface layer (Tellep and Harper's stratification picture);
 * fitted: the layer's 1/delta and its renewal share c, from one start.
 
-Then (``ROUNDS`` > 1) each channel's sigma is re-estimated as max(sensor noise_std, RMSE at
-the fit) and the fit repeated from there: the maximum-likelihood fit with an unknown variance
-per channel, the sensors' noise as its floor. The model's error on a channel it cannot follow
+Then (``ROUNDS`` > 1) each channel's sigma is re-estimated as max(sensor noise_std, the fit's
+RMS residual) where the residuals exceed the noise beyond chance (``ModelError``, the
+diagnosis' own weighting) and the fit repeated from there: the maximum-likelihood fit with an
+unknown variance per channel, the sensors' noise as its floor. The model's error on a channel it cannot follow
 (the ullage temperature: 1.6 K on P263981D against a 0.1 K sensor) then no longer outweighs
 the pressure. The held-out test plays no part in either fit. Honest limit: the shares were
 fixed after a grid of the reference closure on both tests had shown that a share below 1 spoils
 the 25 % fill test (``experiments/README.md``), so this is not a blind test of the choice.
 
-Measured (twelfth session): calibrated on P263968K it predicts P263981D at 1125 Pa on the EBM's
+Measured (twelfth session; fourteenth with `ModelError`): calibrated on P263968K it predicts P263981D at 1126 Pa on the EBM's
 samples (EBM 12728); calibrated on P263981D it predicts P263968K at 464 Pa (EBM 388): leave one
 test out is not met on the 25 % fill test.
 
@@ -40,18 +41,25 @@ import numpy as np
 from mhtb import CHANNELS, LAYER, RUNS, _ebm, _p_rmse, _predict, _runs, _values
 from tankode._threads import single_threaded
 from tankode.compare import channel_rmse, solution_observations
-from tankode.diagnosis import Problem, fit
+from tankode.diagnosis import ModelError, Problem, fit
+from tankode.diagnosis.data import CHANNELS as DIAGNOSIS_CHANNELS
 from tankode.diagnosis.forward import mechanism_params
 from tankode.fleet import Fleet
 
 # ---- configuration ---------------------------------------------------------------------------
 DRY_WALL = "dry_wall_heating"
-# the layer (--layer) -> its flow share's name and start: the grid's c for the layer of fixed
-# thickness; for the growing layer 1e-2, which thickens it by centimetres over the tests' hours
-LAYERS = {LAYER: ("renewal_share", 1e-3), "growing_layer": ("entrainment_share", 1e-2)}
+# the layer (--layer) -> the name and start of its second fitted parameter: the grid's renewal
+# share c for the layer of fixed thickness; for the growing layer an entrainment share of 1e-2,
+# which thickens it by centimetres over the tests' hours; for the layer that thickens by
+# conduction (diffusive_layer) molecular conduction, a diffusivity factor of 1
+LAYERS = {LAYER: ("renewal_share", 1e-3), "growing_layer": ("entrainment_share", 1e-2),
+          "diffusive_layer": ("diffusivity_factor", 1.0)}
 START_INV_THICKNESS_1_PER_M = 50.0  # 2 cm
 MAX_ITERATIONS = 16  # each costs 3 simulations; both directions converged in 4-5 (measured)
 ROUNDS = 3  # fit, then up to two refits with re-estimated sigmas (stops when they move < 5 %)
+# sigma = max(sensor, RMS residual of the fit) where the residuals exceed the noise beyond chance
+# (tankode.diagnosis.weighting; on these tests every channel's does, by a factor 2 to 40)
+WEIGHTING = ModelError()
 QUICK_ITERATIONS = 1  # --quick: both tests cut to 2 h, one iteration per round, two rounds,
 QUICK_ROUNDS = 2  # calibrated on P263981D only (a smoke run)
 QUICK_TRAIN = ("P263981D",)
@@ -80,33 +88,35 @@ def _params(layer):
 
 
 def _rounds(train, held, ebm, iterations, rounds, layer):
-    """Fit on ``train`` with sensor sigmas, then refit with sigma = max(sensor, RMSE); one row per round."""
+    """Fit on ``train`` with sensor sigmas, then refit with ``ModelError`` sigmas; one row per round."""
     params = _params(layer)
     fixed, start = _fixed(layer), _start(layer)
     x = np.array([fixed.get((p.owner, p.name), start.get((p.owner, p.name), 0.0)) for p in params])
-    sensor = dict(train.noise_std)
-    sigma = dict(sensor)
+    problem = Problem(Fleet.from_runs([train]))
+    every_sample = np.ones(problem.obs.y.shape[:2], bool)  # (env, T)
+    measured = [c for c in CHANNELS if c in DIAGNOSIS_CHANNELS]
     rows = []
     for k in range(rounds):
         t = time.perf_counter()
-        problem = Problem(Fleet.from_runs([train.replace(noise_std=sigma)]))
-        f = fit(problem, params, x, np.ones(problem.obs.y.shape[:2], bool), iterations)
+        f = fit(problem, params, x, every_sample, iterations)
         x = f.values
         closure, mechs = problem.build(f.params, f.values)
         own = channel_rmse(train, solution_observations(_predict(train, closure, mechs)), CHANNELS)
         sol = solution_observations(_predict(held, closure, mechs))
         values = _values(f)
+        sigma = {c.rsplit("_", 1)[0]: float(problem.obs.sigma[0, DIAGNOSIS_CHANNELS.index(c)]) for c in measured}
+        res2 = (f.pred[0] - problem.obs.y[0]) ** 2  # (T, 5), NaN where not measured
+        fit_rms = {c: float(np.sqrt(np.nanmean(res2[:, DIAGNOSIS_CHANNELS.index(c)]))) for c in measured}
         rows.append({"round": k, "sigma": sigma, "values": values, "std": dict(zip(values, f.std.tolist())),
                      "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
-                     "train_rmse": {c: v["rmse"] for c, v in own.items()},
+                     "train_rmse": {c: v["rmse"] for c, v in own.items()}, "fit_rms": fit_rms,
                      "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]), "p_rmse_all_samples_Pa": _p_rmse(held, sol),
                      "wall_s": time.perf_counter() - t})
         print(f"{train.name} -> {held.name}: {json.dumps(rows[-1], default=float)}", flush=True)
-        keys = {c: c.rsplit("_", 1)[0] for c in own}  # channel -> its noise_std key ("p_v_Pa" -> "p_v")
-        new = {keys[c]: max(sensor[keys[c]], v["rmse"]) for c, v in own.items()}
-        if all(abs(new[c] / sigma[c] - 1.0) < 0.05 for c in new):
+        new = WEIGHTING.sigma(problem.sensor_obs, f.pred, every_sample)  # (1, 5)
+        if np.allclose(new, problem.obs.sigma, rtol=0.05, equal_nan=True):
             break
-        sigma = {**sigma, **new}
+        problem.weigh(new)
     return rows
 
 

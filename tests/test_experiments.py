@@ -184,10 +184,18 @@ def test_mhtb_fixed_shares_quick(tmp_path):
     for r in (first, second):
         assert r["values"]["dry_wall_heating.phi"] == 1.0 and r["std"]["dry_wall_heating.phi"] == 0.0
         assert r["values"]["boundary_layer_stratification.wall_share"] == 1.0
-    # round 1 weighs each channel by max(sensor noise, round 0's RMSE on the training test)
+    # round 1 weighs a channel by round 0's RMS residual on the training test where it exceeds the
+    # sensor noise beyond chance (ModelError), else by the sensor. That residual is the fit's own;
+    # the reported RMSE re-simulates at simulate's tolerances and interpolates a 60 s output,
+    # which moves it by a few per cent at most
     sensor = {"p_v": 300.0, "T_v": 0.1, "T_l": 0.02}
     assert first["sigma"] == sensor
-    for ch, rmse in first["train_rmse"].items():
+    raised = 0
+    for ch, rms in first["fit_rms"].items():
         key = ch.rsplit("_", 1)[0]
-        assert second["sigma"][key] == pytest.approx(max(sensor[key], rmse))
+        assert rms == pytest.approx(first["train_rmse"][ch], rel=0.05)
+        if second["sigma"][key] != sensor[key]:
+            assert second["sigma"][key] == pytest.approx(rms, rel=1e-12) and rms > sensor[key]
+            raised += 1
+    assert raised >= 2  # the ullage temperature and the pressure are missed by far more than noise
     assert d["below_ebm"] == (second["p_rmse_Pa"] < d["ebm_p_rmse_Pa"])

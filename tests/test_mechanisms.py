@@ -306,3 +306,46 @@ def test_growing_layer_follows_its_equations_and_its_excess_energy_is_the_delive
     model0, _, _ = _tank([absent])
     d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
     assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0
+
+
+def test_diffusive_layer_grows_as_a_conduction_depth_and_keeps_the_delivered_heat():
+    from scipy.integrate import cumulative_trapezoid
+
+    from tankode.mechanisms.diffusive_layer import TOP_HAT_DIFFUSIVITY
+
+    inv0, phi, a = 200.0, 0.8, 50.0  # a 5 mm layer at the start; eddy diffusivity 50x conduction's
+    layer = make_mechanism("diffusive_layer", inv_thickness_1_per_m=inv0, wall_share=phi, diffusivity_factor=a)
+    model, s0, geom = _tank([layer])
+    assert list(model.state_names[-2:]) == ["diffusive_layer.dT_layer_K", "diffusive_layer.grown_m"]
+    f = Forcing.rest(1, Q_aw_W=300.0)
+    s0 = s0.clone()
+    s0[0, 4] += 2.0
+    s = torch.cat([s0, torch.tensor([[0.4, 0.015]], dtype=torch.float64)], dim=-1)  # 0.4 K warm, 2 cm thick
+    fl, _, pl = model.fluxes(s, f)
+    rho = s0[0, 1] / s0[0, 6]
+    D = a * TOP_HAT_DIFFUSIVITY * float(pl.k[0] / (rho * pl.cp[0]))  # m^2/s
+    delta = 1 / inv0 + 0.015
+    C_s = float(rho * pl.cp[0] * fl.A_i_m2[0]) * delta
+    d = model(torch.tensor(0.0), s, f)[0]
+    assert float(d[8]) == pytest.approx(D / delta, rel=1e-12)
+    assert float(d[7]) == pytest.approx(float(phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / C_s - D / delta**2 * 0.4, rel=1e-12)
+    # Integrated: energy conserved; the thickness follows delta^2 = delta_0^2 + 2 D t (within 3 %:
+    # the liquid's diffusivity drifts as it warms); the layer's excess energy is the delivered heat.
+    t, traj = _run(model, s0, geom, f, n=361)
+    E = model.total_energy_J(traj[None])[0]
+    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    grown = (1 / inv0 + traj[:, 8]) ** 2 - 1 / inv0**2  # (T,)
+    assert float(grown[-1]) == pytest.approx(2 * D * 1800.0, rel=0.03) and float(traj[-1, 8]) > 0.005
+    src = []
+    for row in traj:
+        fr, _, _ = model.fluxes(row[None], f)
+        src.append(float(phi * fr.Q_wl_W[0] - fr.Q_li_W[0]))
+    delivered = cumulative_trapezoid(np.array(src), t.numpy(), initial=0.0)[-1]
+    end = traj[-1]
+    fr, _, pr = model.fluxes(end[None], f)
+    excess = float(end[1] / end[6] * pr.cp[0] * fr.A_i_m2[0] * (1 / inv0 + end[8]) * end[7])
+    assert excess == pytest.approx(delivered, rel=0.02) and delivered > 0
+    absent = make_mechanism("diffusive_layer", wall_share=1.0, diffusivity_factor=1.0)
+    model0, _, _ = _tank([absent])
+    d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
+    assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0

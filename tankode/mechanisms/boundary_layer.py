@@ -93,10 +93,15 @@ class BoundaryLayerStratification(SurfaceLayer):
     )
     signature = "pressure above the model growing over hours, bulk liquid temperature unchanged"
 
-    def _source_and_flow(self, x, s, fluxes, liquid):
-        """``(phi Q_wl - Q_li) / (rho_l c_p,l A_i)`` (K m/s) and ``c mdot_bl / (rho_l A_i)`` (m/s), each ``(env,)``."""
+    def _source(self, x, s, fluxes, liquid):
+        """``(phi Q_wl - Q_li) / (rho_l c_p,l A_i)`` (K m/s), ``(env,)``: the layer's heat per unit of its heat capacity per metre."""
         rho_l = s[..., 1] / s[..., 6]
-        source = (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)
+        return (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)
+
+    def _source_and_flow(self, x, s, fluxes, liquid):
+        """``_source`` (K m/s) and ``c mdot_bl / (rho_l A_i)`` (m/s), each ``(env,)``."""
+        rho_l = s[..., 1] / s[..., 6]
+        source = self._source(x, s, fluxes, liquid)
         flow = eckert_jackson_flow_kg_s(rho_l, liquid.mu, liquid.cp, liquid.k, liquid.beta,
                                         s[..., 4] - fluxes.T_l_K, fluxes.H_l_m, fluxes.A_wl_m2 / fluxes.H_l_m)
         return source, self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)
