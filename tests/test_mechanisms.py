@@ -261,9 +261,36 @@ def test_boundary_layer_stratification_follows_its_equation_and_conserves_energy
     assert float(end[0, 7]) == pytest.approx(steady, rel=0.05) and float(end[0, 7]) > 0.1
 
 
-def test_growing_layer_follows_its_equations_and_its_excess_energy_is_the_delivered_heat():
+def _check_growing_layer_run(model, s0, geom, f, phi, inv0, absent):
+    """Integrate a layer of growing thickness (states x, grown) under ``f`` for 30 min and check its budget.
+
+    The tank's energy changes only by the ambient heat (300 W); the layer's excess energy
+    rho c_p A_i delta x is the heat delivered to it, the integral of phi Q_wl - Q_li (within 2 %:
+    rho, c_p and A_i are taken as constant there, as the mechanism does); and with 1/delta_0 = 0
+    (``absent``: the id and other parameters) both states stay at 0. Returns ``(t, traj)``.
+    """
     from scipy.integrate import cumulative_trapezoid
 
+    t, traj = _run(model, s0, geom, f, n=361)
+    E = model.total_energy_J(traj[None])[0]
+    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    src = []
+    for row in traj:
+        fr, _, _ = model.fluxes(row[None], f)
+        src.append(float(phi * fr.Q_wl_W[0] - fr.Q_li_W[0]))
+    delivered = cumulative_trapezoid(np.array(src), t.numpy(), initial=0.0)[-1]
+    end = traj[-1]
+    fr, _, pr = model.fluxes(end[None], f)
+    excess = float(end[1] / end[6] * pr.cp[0] * fr.A_i_m2[0] * (1 / inv0 + end[8]) * end[7])
+    assert excess == pytest.approx(delivered, rel=0.02) and delivered > 0
+    mid, others = absent
+    model0, _, _ = _tank([make_mechanism(mid, wall_share=1.0, **others)])
+    d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
+    assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0
+    return t, traj
+
+
+def test_growing_layer_follows_its_equations_and_its_excess_energy_is_the_delivered_heat():
     from tankode.mechanisms.boundary_layer import eckert_jackson_flow_kg_s
 
     inv0, phi, c = 50.0, 0.8, 0.5  # a 2 cm layer at the start, half the boundary layer's flow piles up under it
@@ -285,32 +312,11 @@ def test_growing_layer_follows_its_equations_and_its_excess_energy_is_the_delive
     assert float(d[8]) == pytest.approx(growth, rel=1e-12)
     assert float(d[7]) == pytest.approx(float(phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / C_s - growth / delta * 0.4, rel=1e-12)
     assert growth / delta * 0.4 > 0.1 * abs(float(d[7]))  # the dilution by growth counts; not vacuous
-    # Integrated: the tank's energy changes only by the ambient heat; the layer thickens; its
-    # excess energy rho c_p A_i delta x is the heat delivered to it, the integral of phi Q_wl - Q_li
-    # (within 2 %: rho, c_p and A_i are taken as constant there, as the mechanism does).
-    t, traj = _run(model, s0, geom, f, n=361)
-    E = model.total_energy_J(traj[None])[0]
-    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    t, traj = _check_growing_layer_run(model, s0, geom, f, phi, inv0, ("growing_layer", {"entrainment_share": 1.0}))
     assert float(traj[-1, 8]) > 0.01  # grown by more than a centimetre in half an hour
-    src = []
-    for row in traj:
-        fr, _, pr = model.fluxes(row[None], f)
-        src.append(float(phi * fr.Q_wl_W[0] - fr.Q_li_W[0]))
-    delivered = cumulative_trapezoid(np.array(src), t.numpy(), initial=0.0)[-1]
-    end = traj[-1]
-    fr, _, pr = model.fluxes(end[None], f)
-    excess = float(end[1] / end[6] * pr.cp[0] * fr.A_i_m2[0] * (1 / inv0 + end[8]) * end[7])
-    assert excess == pytest.approx(delivered, rel=0.02) and delivered > 0
-    # absent (1/delta_0 = 0): both states stay at 0 whatever the other parameters
-    absent = make_mechanism("growing_layer", wall_share=1.0, entrainment_share=1.0)
-    model0, _, _ = _tank([absent])
-    d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
-    assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0
 
 
 def test_diffusive_layer_grows_as_a_conduction_depth_and_keeps_the_delivered_heat():
-    from scipy.integrate import cumulative_trapezoid
-
     from tankode.mechanisms.diffusive_layer import TOP_HAT_DIFFUSIVITY
 
     inv0, phi, a = 200.0, 0.8, 50.0  # a 5 mm layer at the start; eddy diffusivity 50x conduction's
@@ -329,23 +335,8 @@ def test_diffusive_layer_grows_as_a_conduction_depth_and_keeps_the_delivered_hea
     d = model(torch.tensor(0.0), s, f)[0]
     assert float(d[8]) == pytest.approx(D / delta, rel=1e-12)
     assert float(d[7]) == pytest.approx(float(phi * fl.Q_wl_W[0] - fl.Q_li_W[0]) / C_s - D / delta**2 * 0.4, rel=1e-12)
-    # Integrated: energy conserved; the thickness follows delta^2 = delta_0^2 + 2 D t (within 3 %:
-    # the liquid's diffusivity drifts as it warms); the layer's excess energy is the delivered heat.
-    t, traj = _run(model, s0, geom, f, n=361)
-    E = model.total_energy_J(traj[None])[0]
-    assert torch.allclose(E - E[0], 300.0 * t, rtol=1e-8, atol=1e-2)
+    # Integrated: the thickness follows delta^2 = delta_0^2 + 2 D t (within 3 %: the liquid's
+    # diffusivity drifts as it warms)
+    t, traj = _check_growing_layer_run(model, s0, geom, f, phi, inv0, ("diffusive_layer", {"diffusivity_factor": 1.0}))
     grown = (1 / inv0 + traj[:, 8]) ** 2 - 1 / inv0**2  # (T,)
     assert float(grown[-1]) == pytest.approx(2 * D * 1800.0, rel=0.03) and float(traj[-1, 8]) > 0.005
-    src = []
-    for row in traj:
-        fr, _, _ = model.fluxes(row[None], f)
-        src.append(float(phi * fr.Q_wl_W[0] - fr.Q_li_W[0]))
-    delivered = cumulative_trapezoid(np.array(src), t.numpy(), initial=0.0)[-1]
-    end = traj[-1]
-    fr, _, pr = model.fluxes(end[None], f)
-    excess = float(end[1] / end[6] * pr.cp[0] * fr.A_i_m2[0] * (1 / inv0 + end[8]) * end[7])
-    assert excess == pytest.approx(delivered, rel=0.02) and delivered > 0
-    absent = make_mechanism("diffusive_layer", wall_share=1.0, diffusivity_factor=1.0)
-    model0, _, _ = _tank([absent])
-    d0 = model0(torch.tensor(0.0), torch.cat([s0, torch.zeros(1, 2, dtype=torch.float64)], dim=-1), f)[0]
-    assert float(d0[7]) == 0.0 and float(d0[8]) == 0.0
