@@ -98,18 +98,17 @@ class BoundaryLayerStratification(SurfaceLayer):
         rho_l = s[..., 1] / s[..., 6]
         return (self.param(1, x) * fluxes.Q_wl_W - fluxes.Q_li_W) / (rho_l * liquid.cp * fluxes.A_i_m2)
 
-    def _source_and_flow(self, x, s, fluxes, liquid):
-        """``_source`` (K m/s) and ``c mdot_bl / (rho_l A_i)`` (m/s), each ``(env,)``."""
+    def _flow(self, x, s, fluxes, liquid):
+        """``c mdot_bl / (rho_l A_i)`` (m/s), ``(env,)``: the share ``c`` of the boundary layer's flow, as a velocity."""
         rho_l = s[..., 1] / s[..., 6]
-        source = self._source(x, s, fluxes, liquid)
         flow = eckert_jackson_flow_kg_s(rho_l, liquid.mu, liquid.cp, liquid.k, liquid.beta,
                                         s[..., 4] - fluxes.T_l_K, fluxes.H_l_m, fluxes.A_wl_m2 / fluxes.H_l_m)
-        return source, self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)
+        return self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)
 
     def state_derivative(self, z, s, forcing, fluxes, liquid):
         x = z[..., 0]  # (env,)
-        source, renewal = self._source_and_flow(x, s, fluxes, liquid)
-        return torch.stack([self.param(0, x) * (source - renewal * x)], dim=-1)
+        renewal = self._flow(x, s, fluxes, liquid)
+        return torch.stack([self.param(0, x) * (self._source(x, s, fluxes, liquid) - renewal * x)], dim=-1)
 
 
 __all__ = ["BoundaryLayerStratification", "eckert_jackson_flow_kg_s"]

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import math
 
-import torch
-
-from .base import Param, StateVar
+from .base import Param
 from .growing_layer import GrowingLayer
 
 # A liquid at rest heated through its top with a steady flux q has the conduction profile of a
@@ -37,7 +35,7 @@ class DiffusiveLayer(GrowingLayer):
     not on the heat load or the fill: a long test at a low load has a thicker layer than a short
     one at a high load, in the ratio of the square roots of their durations.
 
-    States: ``x`` (K) and ``delta - delta_0`` (m). Parameters: ``inv_thickness_1_per_m`` =
+    States (``growing_layer``'s): ``x`` (K) and ``delta - delta_0`` (m). Parameters: ``inv_thickness_1_per_m`` =
     1/delta_0 (presence: 0 = absent), ``wall_share`` = phi, ``diffusivity_factor`` = a.
 
     Signature: pressure above the model growing over hours, its rise slowing as the square
@@ -66,16 +64,11 @@ class DiffusiveLayer(GrowingLayer):
         Param("diffusivity_factor", "1", 0.0, 100.0, 1.0),
     )
     signature = "pressure above the model growing over hours, its rise slowing as sqrt(t), bulk liquid unchanged"
-    states = (StateVar("dT_layer_K", "K", 1.0), StateVar("grown_m", "m", 0.01))
 
-    def state_derivative(self, z, s, forcing, fluxes, liquid):
-        x, grown = z[..., 0], z[..., 1]  # (env,)
-        inv0 = self.param(0, x)
-        inv_delta = inv0 / (1.0 + inv0 * grown)  # 1/(delta_0 + grown); 0 when absent
-        rho_l = s[..., 1] / s[..., 6]
-        alpha = liquid.k / (rho_l * liquid.cp)  # m^2/s
-        growth = self.param(2, x) * TOP_HAT_DIFFUSIVITY * alpha * inv_delta  # m/s; 0 when absent
-        return torch.stack([inv_delta * (self._source(x, s, fluxes, liquid) - growth * x), growth], dim=-1)
+    def _growth(self, x, s, fluxes, liquid, inv_delta):
+        """``d delta/dt = a (pi/8) alpha_l / delta`` (m/s), ``(env,)``."""
+        alpha = liquid.k / (s[..., 1] / s[..., 6] * liquid.cp)  # m^2/s
+        return self.param(2, x) * TOP_HAT_DIFFUSIVITY * alpha * inv_delta
 
 
 __all__ = ["DiffusiveLayer", "TOP_HAT_DIFFUSIVITY"]

@@ -58,14 +58,18 @@ class GrowingLayer(BoundaryLayerStratification):
     signature = "pressure above the model growing over hours and slowing as the layer thickens, bulk liquid unchanged"
     states = (StateVar("dT_layer_K", "K", 1.0), StateVar("grown_m", "m", 0.01))
 
+    def _growth(self, x, s, fluxes, liquid, inv_delta):
+        """``d delta/dt`` (m/s), ``(env,)``: the share ``c`` of the boundary layer's flow piling up under the surface."""
+        return self._flow(x, s, fluxes, liquid)
+
     def state_derivative(self, z, s, forcing, fluxes, liquid):
         x, grown = z[..., 0], z[..., 1]  # (env,)
         inv0 = self.param(0, x)
         inv_delta = inv0 / (1.0 + inv0 * grown)  # 1/(delta_0 + grown); 0 when absent
-        source, growth = self._source_and_flow(x, s, fluxes, liquid)  # K m/s, m/s
+        growth = self._growth(x, s, fluxes, liquid, inv_delta)  # m/s
         # absent (1/delta_0 = 0): the layer is the whole liquid, nothing to grow or track
         growth = torch.where(inv0 > 0, growth, torch.zeros_like(growth))
-        return torch.stack([inv_delta * (source - growth * x), growth], dim=-1)
+        return torch.stack([inv_delta * (self._source(x, s, fluxes, liquid) - growth * x), growth], dim=-1)
 
 
 __all__ = ["GrowingLayer"]
