@@ -45,6 +45,7 @@ from tankode.compare import channel_rmse, solution_observations
 from tankode.diagnosis import ModelError, Problem, fit
 from tankode.diagnosis.data import CHANNELS as DIAGNOSIS_CHANNELS
 from tankode.diagnosis.forward import mechanism_params
+from tankode.diagnosis.weighting import reweigh, rms_residual
 from tankode.fleet import Fleet
 
 # ---- configuration ---------------------------------------------------------------------------
@@ -96,7 +97,7 @@ def _rounds(train, held, ebm, iterations, rounds, layer):
     x = np.array([fixed.get((p.owner, p.name), start.get((p.owner, p.name), 0.0)) for p in params])
     problem = Problem(Fleet.from_runs([train]))
     every_sample = np.ones(problem.obs.y.shape[:2], bool)  # (env, T)
-    measured = [c for c in CHANNELS if c in DIAGNOSIS_CHANNELS]
+    col = {c: DIAGNOSIS_CHANNELS.index(c) for c in CHANNELS}  # the measured channels' columns
     rows = []
     for k in range(rounds):
         t = time.perf_counter()
@@ -106,19 +107,17 @@ def _rounds(train, held, ebm, iterations, rounds, layer):
         own = channel_rmse(train, solution_observations(_predict(train, closure, mechs)), CHANNELS)
         sol = solution_observations(_predict(held, closure, mechs))
         values = _values(f)
-        sigma = {c.rsplit("_", 1)[0]: float(problem.obs.sigma[0, DIAGNOSIS_CHANNELS.index(c)]) for c in measured}
-        res2 = (f.pred[0] - problem.obs.y[0]) ** 2  # (T, 5), NaN where not measured
-        fit_rms = {c: float(np.sqrt(np.nanmean(res2[:, DIAGNOSIS_CHANNELS.index(c)]))) for c in measured}
+        sigma = {c.rsplit("_", 1)[0]: float(problem.obs.sigma[0, i]) for c, i in col.items()}
+        rms, _ = rms_residual(problem.obs, f.pred, every_sample)  # (1, 5)
+        fit_rms = {c: float(rms[0, i]) for c, i in col.items()}
         rows.append({"round": k, "sigma": sigma, "values": values, "std": dict(zip(values, f.std.tolist())),
                      "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
                      "train_rmse": {c: v["rmse"] for c, v in own.items()}, "fit_rms": fit_rms,
                      "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]), "p_rmse_all_samples_Pa": _p_rmse(held, sol),
                      "wall_s": time.perf_counter() - t})
         print(f"{train.name} -> {held.name}: {json.dumps(rows[-1], default=float)}", flush=True)
-        new = WEIGHTING.sigma(problem.sensor_obs, f.pred, every_sample)  # (1, 5)
-        if np.allclose(new, problem.obs.sigma, rtol=0.05, equal_nan=True):
+        if not reweigh(problem, WEIGHTING, f.pred, every_sample):
             break
-        problem.weigh(new)
     return rows
 
 

@@ -47,7 +47,7 @@ from .evidence import Score, bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
 from .forward import Problem, closure_params, mechanism_params
 from .residuals import heldout_terms, loss_from_terms, residual_report
-from .weighting import ModelError, SensorNoise
+from .weighting import ModelError, SensorNoise, reweigh
 
 
 @dataclass(frozen=True)
@@ -297,10 +297,8 @@ def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisCon
     staged = ((names.index("stable_mixing"), 1.0),) if config.stable_mixing else ()
     base, held = folds.run(params, np.zeros(len(params)), config.max_iterations, staged=staged)
     for _ in range(config.weighting.rounds):
-        sigma = config.weighting.sigma(problem.sensor_obs, base.pred, folds.evidence_mask)
-        if np.allclose(sigma, problem.obs.sigma, rtol=0.05, equal_nan=True):
+        if not reweigh(problem, config.weighting, base.pred, folds.evidence_mask):
             break
-        problem.weigh(sigma)
         base, held = folds.run(params, base.values, config.max_iterations, staged=staged)
     return problem, folds, base, held
 

@@ -81,11 +81,8 @@ class ModelError:
             pred: ``(env, T, 5)`` the calibrated baseline's predictions.
             mask: ``(env, T)`` bool, the calibration data.
         """
-        sel = mask[:, :, None] & obs.measured  # (env, T, 5)
-        r2 = np.where(sel, (pred - np.nan_to_num(obs.y)) ** 2, 0.0)
-        n = sel.sum(axis=1)  # (env, 5)
+        rms, n = rms_residual(obs, pred, mask)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rms = np.sqrt(r2.sum(axis=1) / n)
             reduced = (rms / obs.sigma) ** 2
             beyond = reduced > _chi2.ppf(1.0 - self.significance, np.maximum(n, 1)) / np.maximum(n, 1)
         return np.where((n > 0) & beyond, rms, obs.sigma)
@@ -94,4 +91,29 @@ class ModelError:
         return f"model error (max of sensor noise and the baseline's RMS residual, significance {self.significance:g})"
 
 
-__all__ = ["SensorNoise", "ModelError"]
+def rms_residual(obs: Observed, pred: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """RMS residual of ``pred`` ``(env, T, 5)`` on the samples of ``mask`` ``(env, T)``, and their count, each ``(env, 5)``.
+
+    NaN where a channel has no sample there; in the channels' SI units.
+    """
+    sel = mask[:, :, None] & obs.measured  # (env, T, 5)
+    r2 = np.where(sel, (pred - np.nan_to_num(obs.y)) ** 2, 0.0)
+    n = sel.sum(axis=1)  # (env, 5)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(r2.sum(axis=1) / n), n
+
+
+def reweigh(problem, weighting: SensorNoise | ModelError, pred: np.ndarray, mask: np.ndarray) -> bool:
+    """Weigh ``problem`` by ``weighting``'s sigmas for the fit ``pred`` on ``mask``; False if none moved by 5 %.
+
+    One round of ``ModelError``'s re-weighting (``tankode.diagnosis.calibrate`` repeats it with
+    a refit in between); ``problem`` is left as it was when nothing moved.
+    """
+    sigma = weighting.sigma(problem.sensor_obs, pred, mask)
+    if np.allclose(sigma, problem.obs.sigma, rtol=0.05, equal_nan=True):
+        return False
+    problem.weigh(sigma)
+    return True
+
+
+__all__ = ["SensorNoise", "ModelError", "reweigh", "rms_residual"]
