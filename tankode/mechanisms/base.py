@@ -130,8 +130,9 @@ class Mechanism(nn.Module):
         for i, p in enumerate(self.params):
             for x in v[..., i].reshape(-1).tolist():
                 if not (math.isfinite(x) and p.lower <= x <= p.upper):
-                    raise ValueError(f"mechanism {self.id!r}: {p.name} = {x:g} {p.unit} is outside its allowed "
-                                     f"range [{p.lower:g}, {p.upper:g}] {p.unit}")
+                    unit = "" if p.unit == "1" else f" {p.unit}"  # "eps = -2 1" reads as two numbers
+                    raise ValueError(f"mechanism {self.id!r}: {p.name} = {x:g}{unit} is outside its allowed "
+                                     f"range [{p.lower:g}, {p.upper:g}]{unit}")
         self.value = v.clone()
 
     def values_dict(self) -> dict[str, float]:
