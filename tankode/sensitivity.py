@@ -160,8 +160,10 @@ def sobol_analyze(X: np.ndarray, Y: np.ndarray, bounds, *, num_resamples: int = 
     for j in range(T):
         if std[j] <= rel_std_floor * scale[j]:
             continue
+        # SALib seeds its bootstrap only for a truthy seed (`if seed:`): 0 would draw from numpy's
+        # global generator, so the CIs would change with whatever ran before in the process
         r = sobol_analyze_mod.analyze(problem, Y[:, j], calc_second_order=False, num_resamples=num_resamples,
-                                      conf_level=conf_level, print_to_console=False, seed=seed)
+                                      conf_level=conf_level, print_to_console=False, seed=seed + 1)
         for k in out:
             out[k][j] = r[k]
     return out
