@@ -40,6 +40,14 @@ def _parse_mechanism(spec: str):
     return make_mechanism(mid.strip(), **values)
 
 
+def _initial(run, how: str):
+    """The run started as asked (``metadata`` or ``measured``), saying where its metadata and first samples disagree."""
+    for note in run.initial_disagreements():
+        print(f"note: {note}; starting from the " + ("samples at the start (--initial measured)" if how == "measured"
+                                                   else "metadata (--initial measured starts from the samples)"))
+    return run.with_measured_initial() if how == "measured" else run
+
+
 def cmd_simulate(args) -> int:
     from .plotting import plot_run
     from .run import write_run
@@ -47,6 +55,7 @@ def cmd_simulate(args) -> int:
     from .synthetic import solution_to_runs
 
     run, measured = _load_case_or_run(args.run)
+    run = _initial(run, args.initial)
     closure, mechanisms = None, ()
     if args.model is not None:
         from .saved import load_model
@@ -128,7 +137,7 @@ def cmd_predict(args) -> int:
     from .synthetic import solution_to_runs
 
     closure, mechanisms, meta = load_model(args.model)
-    run = read_run(args.run)
+    run = _initial(read_run(args.run), args.initial)
     if run.fluid != meta["fluid"]:
         raise ValueError(f"model {args.model} is for {meta['fluid']}, run {args.run} is {run.fluid}")
     sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)
@@ -200,6 +209,11 @@ def cmd_bench(args) -> int:
     return 0
 
 
+_INITIAL_HELP = ("start from the run's metadata 'initial' (the format's rule, default) or from the samples measured at "
+                 "the start where there are any (p_v, T_v, T_l, T_w; the fill stays the metadata's); a run whose first "
+                 "samples contradict its metadata by more than 5 sigma is reported either way")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tankode", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -214,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
                    help="add a mechanism to the simulation, e.g. vapor_leak:mdot_kg_s=1e-4 (a hidden effect for "
                         "testing the diagnosis); repeatable")
+    s.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     s.set_defaults(func=cmd_simulate)
     a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
     a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")
@@ -241,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("run", help="run JSON (its observations, if any, are drawn for comparison)")
     pr.add_argument("--out", required=True, help="output directory for the predicted run")
     pr.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
+    pr.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     pr.set_defaults(func=cmd_predict)
     dg = sub.add_parser("diagnose", help="what the model gets wrong, which missing mechanism explains it, the gain")
     dg.add_argument("runs", nargs="+", help="measured run JSON files of one tank")
@@ -249,7 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
     dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
-    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer, boundary_layer_stratification, growing_layer and diffusive_layer)")
+    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer, boundary_layer_stratification, growing_layer, diffusive_layer and dry_wall_node)")
     dg.add_argument("--weighting", choices=("sensor", "model-error"), default="sensor",
                     help="weigh residuals by the sensor noise, or by the calibrated baseline's RMS residual where it "
                          "misses a channel beyond chance (real tanks: a channel the model cannot follow stops "

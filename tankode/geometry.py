@@ -200,6 +200,16 @@ class TankGeometry:
         """
         return self._interface(self._clamp_level(H_m))
 
+    def contact_line_m(self, H_m: Any) -> Tensor:
+        """Length [m] of the line where the free surface meets the wall at level ``H_m`` [m].
+
+        The perimeter of the interface: a circle for the upright shapes (``2 sqrt(pi A_i)``),
+        two lengths and two chords for the horizontal cylinder. It is the width through which
+        the wall conducts heat across the liquid line (``dry_wall_node``). 0 where the
+        interface vanishes (an empty or full horizontal cylinder, the poles of a sphere).
+        """
+        return self._contact_line(self._clamp_level(H_m))
+
     def wetted_areas_m2(self, H_m: Any) -> tuple[Tensor, Tensor]:
         """Inner wall area [m2] in contact with liquid and with vapour at level ``H_m`` [m].
 
@@ -323,6 +333,11 @@ class TankGeometry:
 
     def _wall_below(self, h: Tensor) -> Tensor:
         raise NotImplementedError
+
+    def _contact_line(self, h: Tensor) -> Tensor:
+        # upright shapes: the interface is a disc; sqrt kept away from 0 for autograd
+        A = self._interface(h)
+        return torch.where(A > 0.0, 2.0 * torch.sqrt(math.pi * torch.clamp(A, min=1e-30)), 0.0)
 
     def _level_from_volume(self, v: Tensor) -> Tensor:
         """Level for volumes already clamped to [0, volume]; called under no_grad."""
@@ -586,6 +601,13 @@ class HorizontalCylinder(TankGeometry):
         pos = q > 0.0
         chord = 2.0 * torch.sqrt(torch.where(pos, q, r**2))
         return torch.where(pos, chord, 0.0) * length
+
+    def _contact_line(self, h):
+        # the interface is a rectangle (length x chord): two wetted lines along the shell, one
+        # chord on each flat end
+        length = self._d("cylinder_length_m", h)
+        A = self._interface(h)
+        return torch.where(A > 0.0, 2.0 * (length + A / length), 0.0)
 
     def _wall_below(self, h):
         r, length = self._d("radius_m", h), self._d("cylinder_length_m", h)

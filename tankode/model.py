@@ -76,6 +76,7 @@ class Fluxes(NamedTuple):
     Q_wl_W: Tensor
     A_wv_m2: Tensor
     A_wl_m2: Tensor
+    L_c_m: Tensor  # length of the liquid line on the wall (the interface's perimeter)
     J_evap_kg_s: Tensor
     h_v_J_per_kg: Tensor
     h_l_J_per_kg: Tensor
@@ -187,7 +188,8 @@ class TankModel(nn.Module):
         J = (Q_vi + Q_li) / (pv.h_vsat - pv.h_lsat)
         f = Fluxes(
             p_v_Pa=p, T_v_K=pv.T, T_l_K=pl.T, T_sat_K=T_sat, H_l_m=H_l, A_i_m2=A_i, theta_W_m2K=theta,
-            Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, A_wv_m2=A_wv, A_wl_m2=A_wl, J_evap_kg_s=J,
+            Q_vi_W=Q_vi, Q_li_W=Q_li, Q_wv_W=Q_wv, Q_wl_W=Q_wl, A_wv_m2=A_wv, A_wl_m2=A_wl,
+            L_c_m=g.contact_line_m(H_l), J_evap_kg_s=J,
             h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
             h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
         )

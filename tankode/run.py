@@ -692,6 +692,49 @@ class Run:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    def initial_disagreements(self, n_sigma: float = 5.0) -> tuple[str, ...]:
+        """Where the samples taken at the start contradict ``initial``: one sentence per channel.
+
+        A channel measured at exactly ``t0_s`` whose value differs from the metadata's initial
+        value by more than ``n_sigma`` of its ``noise_std`` (the level is not compared: the
+        metadata give a fill ratio). The data format says ``initial`` is the state at the first
+        time stamp, so such a run contradicts itself; tankode starts from the metadata unless
+        asked otherwise (:meth:`with_measured_initial`, ``--initial measured``).
+        """
+        out = []
+        obs = self.observations
+        if not len(obs) or obs.t_s[0] != self.t0_s:
+            return ()
+        for ch in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):
+            i = OBS_CHANNELS.index(ch)
+            if not obs.mask[0, i]:
+                continue
+            meta = self.initial.T_w0_K if ch == "T_w_K" else getattr(self.initial, ch)
+            measured = float(obs.values[0, i])
+            sigma = self.noise_std[_NOISE_OF[ch]]
+            if abs(measured - meta) > n_sigma * sigma:
+                where = f"{Path(self.path).with_suffix('.csv').name}, first row" if self.path else "first sample"
+                out.append(f"{self.name}: initial.{ch} = {meta:g} but {ch} = {measured:g} was measured at "
+                           f"t = {self.t0_s:g} s ({where}), {abs(measured - meta) / sigma:.0f} sigma apart")
+        return tuple(out)
+
+    def with_measured_initial(self) -> "Run":
+        """A copy whose initial p_v, T_v, T_l (and T_w) are the samples measured at ``t0_s``, where measured.
+
+        The fill ratio stays the metadata's. For runs whose metadata contradict their own first
+        samples (:meth:`initial_disagreements`), e.g. MHTB P263968K, whose ullage reads 24.84 K
+        at t = 0 against 21.01 K in its metadata.
+        """
+        obs = self.observations
+        if not len(obs) or obs.t_s[0] != self.t0_s:
+            return self
+        changes = {}
+        for ch in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):
+            i = OBS_CHANNELS.index(ch)
+            if obs.mask[0, i]:
+                changes[ch] = float(obs.values[0, i])
+        return self.replace(initial=dataclasses.replace(self.initial, **changes)) if changes else self
+
     def until(self, t_end_s: float) -> "Run":
         """The run cut at ``t_end_s`` [s]: observations up to it, inputs changing before it.
 

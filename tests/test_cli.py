@@ -49,6 +49,17 @@ def test_simulate_measured_mhtb_runs(tmp_path, capsys, name):
     assert p0 == pytest.approx(measured.initial.p_v_Pa, rel=1e-3)
 
 
+@needs_mhtb
+def test_simulate_reports_and_can_start_from_first_samples_that_contradict_the_metadata(tmp_path, capsys):
+    run = MHTB / "P263968K.json"
+    assert main(["simulate", str(run), "--out", str(tmp_path / "meta"), "--dt", "3600"]) == 0
+    assert "initial.T_v_K = 21.01 but T_v_K = 24.8394" in capsys.readouterr().out
+    assert main(["simulate", str(run), "--out", str(tmp_path / "meas"), "--dt", "3600", "--initial", "measured"]) == 0
+    assert "starting from the samples at the start" in capsys.readouterr().out
+    T_v = {k: read_run(tmp_path / k / "P263968K.json").observations.channel("T_v_K")[1][0] for k in ("meta", "meas")}
+    assert T_v["meta"] == pytest.approx(21.01, abs=1e-3) and T_v["meas"] == pytest.approx(24.8394, abs=1e-3)
+
+
 def test_bad_input_is_a_clear_error(tmp_path, capsys):
     assert main(["simulate", "case2", "--out", str(tmp_path)]) == 0
     good = (tmp_path / "case2.json").read_text()

@@ -13,9 +13,9 @@ from mhtb_data import needs_mhtb
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(script, out, timeout_s=600):
+def _run(script, out, timeout_s=600, args=()):
     env = dict(os.environ, MPLBACKEND="Agg")
-    proc = subprocess.run([sys.executable, str(ROOT / "experiments" / script), "--quick", "--out", str(out)],
+    proc = subprocess.run([sys.executable, str(ROOT / "experiments" / script), "--quick", "--out", str(out), *args],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
@@ -199,3 +199,21 @@ def test_mhtb_fixed_shares_quick(tmp_path):
             raised += 1
     assert raised >= 2  # the ullage temperature and the pressure are missed by far more than noise
     assert d["below_ebm"] == (second["p_rmse_Pa"] < d["ebm_p_rmse_Pa"])
+
+
+@pytest.mark.slow
+@needs_mhtb
+def test_mhtb_fixed_shares_with_the_dry_wall_node_quick(tmp_path):
+    _run("mhtb_fixed_shares.py", tmp_path, timeout_s=1800, args=("--wall", "dry_wall_node", "--initial", "measured"))
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (summary["wall"], summary["initial"]) == ("dry_wall_node", "measured")
+    assert "dry_wall_heating.phi" not in summary["fixed"]
+    (d,) = summary["directions"].values()
+    for r in d["rounds"]:
+        # the shell's sheet resistance is fitted (from 10 K/W) inside its box, the wall share held at 1
+        assert 0.0 < r["values"]["dry_wall_node.R_sheet_K_per_W"] < 1e3 and r["std"]["dry_wall_node.R_sheet_K_per_W"] > 0
+        assert r["values"]["boundary_layer_stratification.wall_share"] == 1.0
+        assert set(r["heldout_rmse"]) == {"p_v_Pa", "T_v_K", "T_l_K"}
+    assert set(d["ebm_rmse"]) == {"p_v_Pa", "T_v_K", "T_l_K"}
+    assert (tmp_path / "P263968K_from_P263981D.png").stat().st_size > 10_000
+    assert "`dry_wall_node`'s R_sheet_K_per_W fitted" in (tmp_path / "summary.md").read_text()

@@ -477,3 +477,28 @@ def test_spec_volume_mismatch_names_both_values():
         geometry_from_spec({"shape": "sphere", "radius_m": 1.0, "volume_m3": 4.3})
     msg = str(err.value)
     assert "4.3" in msg and f"{v_true:.6g}" in msg
+
+
+def ref_contact_line(name, h):
+    """Length of the liquid line on the wall: 2 pi r(h), or two lengths and two chords (horizontal)."""
+    cls, d = CASES[name]
+    if cls is HorizontalCylinder:
+        R, L = d["radius_m"], d["cylinder_length_m"]
+        chord = 2 * math.sqrt(max(R**2 - (R - h) ** 2, 0.0))
+        return 2 * (L + chord) if chord > 0 else 0.0
+    return 2 * math.pi * math.sqrt(max(ref_r2_and_half_dr2(name, h)[0], 0.0))
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_contact_line_is_the_interface_perimeter(name):
+    g = make(name)
+    H = levels(g, 23, 0.01, 0.99)
+    got = g.contact_line_m(H)
+    want = torch.tensor([ref_contact_line(name, float(h)) for h in H], dtype=F64)
+    assert torch.allclose(got, want, rtol=1e-10, atol=1e-10)
+    # finite gradients everywhere, the ends included (where the line vanishes for a sphere)
+    H = levels(g, 9).requires_grad_(True)
+    line = g.contact_line_m(H)
+    if line.requires_grad:  # (an upright cylinder's is a constant)
+        (grad,) = torch.autograd.grad(line.sum(), H)
+        assert torch.isfinite(grad).all()

@@ -97,6 +97,41 @@ def test_dry_wall_heating_moves_the_dry_walls_share_of_the_ambient_heat_into_the
     assert model.observe(s[-1:])[0, 1] > model0.observe(sb[-1:])[0, 1] + 0.1
 
 
+def test_dry_wall_node_balances_its_heat_and_spans_the_lump_to_the_insulated_dry_wall():
+    model0, s0, geom = _tank()
+    f = Forcing.rest(1, Q_aw_W=500.0)
+    f0, _, _ = model0.fluxes(s0, f)
+    A_wv, L_c, hA = f0.A_wv_m2, f0.L_c_m, f0.theta_W_m2K[:, 2] * f0.A_wv_m2  # (1,)
+    assert torch.allclose(L_c, torch.tensor([2 * math.pi * 0.9], dtype=torch.float64), rtol=1e-12)  # a disc's rim
+    Q_d = 500.0 * A_wv / (A_wv + f0.A_wl_m2)
+    T_w, T_v = s0[:, 4], f0.T_v_K
+
+    def moved(R_s):  # heat the node moves from the lump to the vapour (W), and the lump's change
+        model, _, _ = _tank([make_mechanism("dry_wall_node", R_sheet_K_per_W=R_s)])
+        q_v, q_l, q_w = model.extra_heat_W(s0, f, f0)
+        assert q_l == 0.0 and torch.equal(q_w, -q_v)
+        return q_v
+
+    for R_s in (0.5, 10.0, 300.0):
+        # the node's own balance: what reaches it leaves by the ullage and by conduction
+        x = make_mechanism("dry_wall_node").node_excess_K(R_s, f0, 500.0)  # T_d - T_w
+        G = 3.0 * L_c**2 / (A_wv * R_s)
+        assert torch.allclose(Q_d, hA * (T_w + x - T_v) + G * x, rtol=1e-12)
+        assert torch.allclose(moved(R_s), hA * x, rtol=1e-12)  # the ullage sees T_d instead of T_w
+    # a good conductor is the baseline's lump; an insulating shell sends the dry wall's whole load to
+    # the ullage and cuts it from the lump (Q_wv: the lump's exchange with the ullage)
+    # (linear in R_s near 0: the slope the diagnosis' score test sees)
+    assert torch.allclose(moved(1e-9) / 1e-9, hA * A_wv * (Q_d - f0.Q_wv_W) / (3.0 * L_c**2), rtol=1e-6)
+    assert torch.allclose(moved(1e3), Q_d - f0.Q_wv_W, rtol=2e-3)
+    # an internal redistribution: the total energy gains exactly Q_aw; the ullage ends warmer
+    model, _, _ = _tank([make_mechanism("dry_wall_node", R_sheet_K_per_W=10.0)])
+    t, s = _run(model, s0, geom, f)
+    E = model.total_energy_J(s[None])[0]
+    assert torch.allclose(E - E[0], 500.0 * t, rtol=1e-7, atol=1e-2)
+    _, sb = _run(model0, s0, geom, f)
+    assert model.observe(s[-1:])[0, 1] > model0.observe(sb[-1:])[0, 1] + 0.1
+
+
 def test_closed_tank_stays_conservative_with_stratification_and_wall_capacity_error():
     model, s0, geom = _tank([make_mechanism("thermal_stratification", dT_K=0.8),
                              make_mechanism("wall_heat_capacity_error", eps=0.5)])

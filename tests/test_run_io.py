@@ -57,6 +57,29 @@ def test_read_mhtb(name, counts, q_aw, duration, fill):
 
 
 @needs_mhtb
+def test_mhtb_initial_state_contradicting_the_first_samples_is_reported_and_can_be_replaced():
+    (note,) = read_run(MHTB / "P263968K.json").initial_disagreements()
+    assert "initial.T_v_K = 21.01 but T_v_K = 24.8394" in note and "P263968K.csv, first row" in note
+    assert "38 sigma" in note
+    assert read_run(MHTB / "P263981D.json").initial_disagreements() == ()  # its ullage is first read at 30 s
+    run = read_run(MHTB / "P263968K.json").with_measured_initial()
+    assert (run.initial.p_v_Pa, run.initial.T_v_K, run.initial.T_l_K) == (122014.0, 24.8394, 20.9645)
+    assert run.initial.fill_ratio == 0.25 and run.initial_disagreements() == ()
+
+
+def test_measured_initial_takes_only_the_channels_sampled_at_the_start():
+    obs = Observations.from_channels({"T_v_K": ([0.0, 10.0], [31.2, 31.5]), "p_v_Pa": ([5.0], [4.9e5])})
+    run = Run(name="r", fluid="ParaHydrogen", tank=TankSpec.from_dict({"shape": "sphere", "radius_m": 1.0}),
+              initial=InitialState(p_v_Pa=4.8e5, T_v_K=30.0, T_l_K=20.1, fill_ratio=0.5),
+              noise_std={"p_v": 1e3, "T_v": 0.2}, observations=obs, duration_s=20.0)
+    (note,) = run.initial_disagreements()
+    assert note.startswith("r: initial.T_v_K = 30 but T_v_K = 31.2") and "6 sigma" in note
+    assert run.initial_disagreements(n_sigma=7.0) == ()
+    moved = run.with_measured_initial().initial
+    assert (moved.T_v_K, moved.p_v_Pa, moved.T_l_K) == (31.2, 4.8e5, 20.1)  # p is first read at 5 s
+
+
+@needs_mhtb
 @pytest.mark.parametrize("name", ["P263968K", "P263981D"])
 def test_read_peer_prediction_csv(name):
     obs, sched = read_timeseries_csv(MHTB / f"{name}.ebm.csv")

@@ -94,8 +94,11 @@ class Thresholds:
 # ranked first with the thickness within 9 % but estimate/std 0.5; experiments/README.md); the
 # boundary-layer variants share its parameters' structure, and the wall-fed source of all has no
 # slope at 0, where the score test looks. They are considered when asked for (``candidates``,
-# ``--candidates``), with a fit started from a layer.
-OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer")
+# ``--candidates``), with a fit started from a layer. ``dry_wall_node`` (the dry wall as its own
+# node, fifteenth session) is opt-in until it has been hidden in tankode's cases and found: it
+# was built for the MHTB tests, where it and ``dry_wall_heating`` both move the dry wall's heat.
+OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer",
+                           "dry_wall_node")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
 

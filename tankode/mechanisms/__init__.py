@@ -8,6 +8,7 @@ from __future__ import annotations
 from .base import Mechanism, Param, StateVar
 from .boundary_layer import BoundaryLayerStratification
 from .dry_wall import DryWallHeating
+from .dry_wall_node import DryWallNode
 from .diffusive_layer import DiffusiveLayer
 from .growing_layer import GrowingLayer
 from .heat_leaks import HeatLeakLiquid, HeatLeakVapor, HeatLeakWall
@@ -22,7 +23,7 @@ MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
               WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
-              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer)
+              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode)
 }
 
 
@@ -52,5 +53,5 @@ __all__ = [
     "MECHANISMS", "Mechanism", "Param", "StateVar", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
-    "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer",
+    "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode",
 ]
