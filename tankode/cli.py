@@ -91,7 +91,7 @@ def cmd_assimilate(args) -> int:
     from .run import read_run
     from .saved import load_model, save_model
 
-    runs = [read_run(p) for p in args.runs]
+    runs = [_initial(read_run(p), args.initial) for p in args.runs]
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory]())
     out = Path(args.out)
@@ -159,7 +159,7 @@ def cmd_diagnose(args) -> int:
     from .run import read_run
     from .saved import load_model
 
-    runs = [read_run(p) for p in args.runs]
+    runs = [_initial(read_run(p), args.initial) for p in args.runs]
     closure, mechanisms = None, ()
     if args.model is not None:
         closure, mechanisms, meta = load_model(args.model)
@@ -250,6 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
     a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
     a.add_argument("--quiet", action="store_true", help="no progress bar")
+    a.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     a.set_defaults(func=cmd_assimilate)
     pr = sub.add_parser("predict", help="predict a run from its initial state and inputs with a saved model")
     pr.add_argument("model", help="model directory written by assimilate or diagnose")
@@ -271,6 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "misses a channel beyond chance (real tanks: a channel the model cannot follow stops "
                          "dominating the evidence)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
+    dg.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     dg.set_defaults(func=cmd_diagnose)
     b = sub.add_parser("bench", help="surrogate accuracy and speed vs CoolProp; forward real-time factor")
     b.add_argument("--points", type=int, default=10_000, help="held-out points for the surrogate benchmark")

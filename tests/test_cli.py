@@ -60,6 +60,33 @@ def test_simulate_reports_and_can_start_from_first_samples_that_contradict_the_m
     assert T_v["meta"] == pytest.approx(21.01, abs=1e-3) and T_v["meas"] == pytest.approx(24.8394, abs=1e-3)
 
 
+class _Captured(Exception):
+    """Raised by a stand-in for the trainer or the diagnosis once it has the runs the CLI built."""
+
+
+@needs_mhtb
+@pytest.mark.parametrize("command,target", [("diagnose", "tankode.diagnosis.diagnose"),
+                                            ("assimilate", "trainers.assimilate.Assimilator")])
+@pytest.mark.parametrize("initial,T_v_K", [("metadata", 21.01), ("measured", 24.8394)])
+def test_diagnose_and_assimilate_start_where_initial_says(tmp_path, monkeypatch, capsys, command, target, initial,
+                                                          T_v_K):
+    import importlib
+
+    module, name = target.rsplit(".", 1)
+    seen = []
+
+    def stand_in(runs, *args, **kwargs):
+        seen.extend(runs)
+        raise _Captured
+
+    monkeypatch.setattr(importlib.import_module(module), name, stand_in)
+    with pytest.raises(_Captured):
+        main([command, str(MHTB / "P263968K.json"), "--out", str(tmp_path), "--initial", initial])
+    (run,) = seen
+    assert run.initial.T_v_K == pytest.approx(T_v_K, abs=1e-3)
+    assert "initial.T_v_K = 21.01 but T_v_K = 24.8394" in capsys.readouterr().out
+
+
 def test_bad_input_is_a_clear_error(tmp_path, capsys):
     assert main(["simulate", "case2", "--out", str(tmp_path)]) == 0
     good = (tmp_path / "case2.json").read_text()
