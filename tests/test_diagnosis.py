@@ -46,6 +46,39 @@ def test_bootstrap_gain_interval_covers_the_truth():
     assert g0 == 0 and lo0 == 0 == hi0
 
 
+# -- the decision rule ---------------------------------------------------------------------------
+
+
+def _evidence(mechanism, delta_bic, gain, ci_low, passes, reasons=()):
+    from tankode.diagnosis.diagnose import Candidate
+
+    return Candidate(mechanism, score=1.0, score_rank=1, refit=True, delta_bic=delta_bic, heldout_gain=gain,
+                     heldout_gain_ci=(ci_low, gain + 0.1), passes=passes, reasons=list(reasons))
+
+
+@pytest.mark.parametrize("runner_up,withdrawn", [
+    # better by 62,800 in dBIC with a real held-out gain, unresolved: the passing one is not named
+    (("dry_wall_node", -178889.4, 0.54, 0.43, False, ["estimate/std 1.32 < 3.0"]), True),
+    # better by less than outranked_bic (10): the data do not prefer it strongly
+    (("dry_wall_node", -116085.0, 0.54, 0.43, False, ["estimate/std 1.32 < 3.0"]), False),
+    # better in dBIC but its held-out gain interval reaches 0: not credible
+    (("thermal_stratification", -145723.9, 0.38, -0.08, False, ["gain interval low end -0.076 <= 0.0"]), False),
+    # better and passing itself: it is the cause, the other stays a passing candidate
+    (("dry_wall_node", -178889.4, 0.54, 0.43, True, []), False),
+])
+def test_a_passing_candidate_outranked_by_a_credible_unnamed_one_is_not_named(runner_up, withdrawn):
+    from tankode.diagnosis.diagnose import Thresholds, _outranked
+
+    named = _evidence("pressure_sensor_bias", -116079.0, 0.62, 0.38, True)
+    other = _evidence(*runner_up)
+    _outranked([named, other], Thresholds())
+    assert named.passes is not withdrawn
+    assert bool(named.reasons) is withdrawn
+    if withdrawn:
+        assert named.reasons[0].startswith("outranked by dry_wall_node (dBIC -178889.4 against -116079.0")
+    assert other.passes is runner_up[4]
+
+
 # -- hidden mechanisms ---------------------------------------------------------------------------
 
 # (case, mechanism, value, seed): a realistic magnitude whose signature is a few noise sigmas

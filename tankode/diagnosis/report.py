@@ -90,7 +90,10 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     th = d.thresholds
     L += ["", f"Decision rule: dBIC <= {th.delta_bic}, held-out gain >= {th.heldout_gain} with the lower end of its "
           f"95 % block-bootstrap interval > {th.gain_ci_low}, estimate / standard error >= {th.z_score}, and at least "
-          f"{th.explained:.0%} of the baseline's held-out loss above the noise floor explained.", ""]
+          f"{th.explained:.0%} of the baseline's held-out loss above the noise floor explained; the estimate "
+          f"refitted on held-out data agrees within {th.stability:.0%} plus three standard errors; and no other "
+          f"candidate that fits better by more than {th.outranked_bic:g} in dBIC with a real held-out gain is left "
+          f"unnamed (outranked).", ""]
     L += ["## Candidates", "",
           "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | explained | verdict |",
           "|---|---|---|---|---|---|---|---|---|"]

@@ -27,7 +27,8 @@ class DryWallNode(Mechanism):
     interface's perimeter) and length ``A_wv / L_c`` held at ``T_w`` at one end, for its mean
     temperature (``3 k t w / L``); ``R_s = 1 / (k_w t_w)`` the shell's sheet resistance, the
     parameter (K/W; an aluminium shell of 12.7 mm at 20 K, k_w of order 20-40 W/(m K), has
-    ``R_s`` of 2-4 K/W, a stainless one of 3 mm about 300). The ullage then receives
+    ``R_s`` of 2-4 K/W, a stainless one of 3 mm about 300; each MHTB test alone fits 8.8 and
+    9.6 K/W, ``experiments/README.md``). The ullage then receives
     ``h_wv A_wv (T_d - T_v)`` instead of ``h_wv A_wv (T_w - T_v)``, and the lump loses the
     same amount, an internal redistribution (energy is conserved, the node stores none)::
 
