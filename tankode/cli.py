@@ -172,7 +172,7 @@ def cmd_diagnose(args) -> int:
         split = LeaveOneRunOut()
     candidates = tuple(args.candidates) if args.candidates else DEFAULT_CANDIDATES
     weighting = ModelError() if args.weighting == "model-error" else SensorNoise()
-    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting)
+    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block)
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
     if d.cause:
@@ -271,6 +271,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="weigh residuals by the sensor noise, or by the calibrated baseline's RMS residual where it "
                          "misses a channel beyond chance (real tanks: a channel the model cannot follow stops "
                          "dominating the evidence)")
+    # DiagnosisConfig.block_s, spelled out: the parser does not import the diagnosis.
+    dg.add_argument("--block", type=float, default=120.0, metavar="SECONDS",
+                    help="bootstrap block length of the held-out gain's interval in s (default 120; longer than the "
+                         "residuals' correlation time: an hour for sparse real data such as MHTB's)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     dg.set_defaults(func=cmd_diagnose)

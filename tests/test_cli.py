@@ -102,6 +102,28 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
         main(["simulate", "case9", "--out", str(tmp_path)])
 
 
+def test_diagnose_block_default_is_the_configs_and_reaches_it(tmp_path, monkeypatch, capsys):
+    import tankode.diagnosis
+    from tankode.diagnosis import DiagnosisConfig
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["diagnose"]
+    (block,) = [a for a in sub._actions if a.dest == "block"]
+    assert block.default == DiagnosisConfig.block_s
+    seen = {}
+
+    def stand_in(runs, closure, mechanisms, config, **kwargs):
+        seen["config"] = config
+        raise _Captured
+
+    monkeypatch.setattr(tankode.diagnosis, "diagnose", stand_in)
+    assert main(["simulate", "case1", "--out", str(tmp_path), "--dt", "600"]) == 0
+    with pytest.raises(_Captured):
+        main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--block", "3600"])
+    assert seen["config"].block_s == 3600.0
+    assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--block", "0"]) == 2
+    assert "block_s must be > 0 s, got 0.0" in capsys.readouterr().err
+
+
 def test_assimilate_memory_names_are_the_trainers_strategies():
     """The parser spells out the --memory names (it does not import the trainers): they must stay in step."""
     from trainers.memory import MEMORIES
