@@ -266,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
     dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
-    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer, boundary_layer_stratification, growing_layer, diffusive_layer and dry_wall_node)")
+    dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer, boundary_layer_stratification, growing_layer and diffusive_layer)")
     dg.add_argument("--weighting", choices=("sensor", "model-error"), default="sensor",
                     help="weigh residuals by the sensor noise, or by the calibrated baseline's RMS residual where it "
                          "misses a channel beyond chance (real tanks: a channel the model cannot follow stops "
