@@ -13,6 +13,8 @@ from tankode.diagnosis.residuals import spans_outside
 from tankode.mechanisms import make_mechanism
 from tankode.synthetic import solution_to_runs
 
+from mhtb_data import MHTB, needs_mhtb
+
 # -- statistics with known answers ---------------------------------------------------------------
 
 
@@ -169,6 +171,26 @@ def test_a_close_runner_up_is_reported_as_not_ruled_out():
     assert d.cause == "dry_wall_heating" and d.alternatives == ["heat_leak_vapor"]
     assert d.to_json()["alternatives"] == ["heat_leak_vapor"]
     assert "Not ruled out: `heat_leak_vapor`" in markdown(d, [])
+
+
+@pytest.mark.slow
+@needs_mhtb
+def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_is_not_named():
+    """The case that made the outranked rule: real data, where the weaker explanation passes every other threshold."""
+    from tankode import read_run
+    from tankode.diagnosis import LeaveOneRunOut
+
+    runs = [read_run(MHTB / f"{n}.json").with_measured_initial() for n in ("P263968K", "P263981D")]
+    config = DiagnosisConfig(candidates=("pressure_sensor_bias", "dry_wall_node"), split=LeaveOneRunOut(),
+                             max_iterations=8, max_iterations_refit=8, block_s=3600.0)
+    d = diagnose(runs, config=config)
+    by = {c.mechanism: c for c in d.ranking}
+    bias, node = by["pressure_sensor_bias"], by["dry_wall_node"]
+    assert node.delta_bic < bias.delta_bic - 1e4 and node.heldout_gain_ci[0] > 0 and not node.passes
+    # the bias clears everything else (a 17.7 kPa offset on a 300 Pa sensor) and is withdrawn
+    assert [r for r in bias.reasons if not r.startswith("outranked by dry_wall_node")] == []
+    assert bias.params["bias_Pa"] == pytest.approx(17.7e3, rel=0.1)
+    assert d.cause is None and d.ranking[0].mechanism == "dry_wall_node"
 
 
 @pytest.mark.slow
