@@ -125,6 +125,7 @@ def _rounds(train, held, ebm, iterations, rounds, layer, wall=DRY_WALL):
         closure, mechs = problem.build(f.params, f.values)
         own = channel_rmse(train, solution_observations(_predict(train, closure, mechs)), CHANNELS)
         sol = solution_observations(_predict(held, closure, mechs))
+        heldout = {c: v["rmse"] for c, v in channel_rmse(held, sol, CHANNELS).items()}
         values = _values(f)
         sigma = {c.rsplit("_", 1)[0]: float(problem.obs.sigma[0, i]) for c, i in col.items()}
         rms, _ = rms_residual(problem.obs, f.pred, every_sample)  # (1, 5)
@@ -132,8 +133,8 @@ def _rounds(train, held, ebm, iterations, rounds, layer, wall=DRY_WALL):
         rows.append({"round": k, "sigma": sigma, "values": values, "std": dict(zip(values, f.std.tolist())),
                      "chi2_train": f.chi2, "n_data": f.n_data, "fit_status": f.status,
                      "train_rmse": {c: v["rmse"] for c, v in own.items()}, "fit_rms": fit_rms,
-                     "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]), "p_rmse_all_samples_Pa": _p_rmse(held, sol),
-                     "heldout_rmse": {c: v["rmse"] for c, v in channel_rmse(held, sol, CHANNELS).items()},
+                     "p_rmse_Pa": _p_rmse(held, sol, within=ebm[held.name]),
+                     "p_rmse_all_samples_Pa": heldout["p_v_Pa"], "heldout_rmse": heldout,
                      "wall_s": time.perf_counter() - t})
         print(f"{train.name} -> {held.name}: {json.dumps(rows[-1], default=float)}", flush=True)
         if not reweigh(problem, WEIGHTING, f.pred, every_sample):
@@ -170,8 +171,8 @@ def main(argv=None) -> dict:
             held = next(r for r in runs if r is not train)
             rows, sol = _rounds(train, held, ebm, QUICK_ITERATIONS if args.quick else MAX_ITERATIONS,
                            QUICK_ROUNDS if args.quick else ROUNDS, args.layer, args.wall)
-            ebm_rmse = _p_rmse(held, ebm[held.name], within=ebm[held.name])
             ebm_all = {c: v["rmse"] for c, v in channel_rmse(held, ebm[held.name], CHANNELS, within=ebm[held.name]).items()}
+            ebm_rmse = ebm_all["p_v_Pa"]
             _figure(out / f"{held.name}_from_{train.name}.png", held, ebm[held.name], sol,
                     f"tankode ({args.wall} + {args.layer}), calibrated on {train.name}")
             summary["directions"][f"{train.name}->{held.name}"] = {
@@ -212,21 +213,19 @@ def _figure(path, run, ebm, prediction, label):
 
 
 def _temps(r, d) -> str:
-    """Held-out T_v and T_l RMSE with the EBM's beside them (rows written before these were recorded: -)."""
-    if "heldout_rmse" not in r:
-        return "-"
-    h, e = r["heldout_rmse"], d.get("ebm_rmse", {})
-    return ", ".join(f"{h[c]:.3g} ({e[c]:.3g})" if c in e else f"{h[c]:.3g}" for c in ("T_v_K", "T_l_K"))
+    """Held-out T_v and T_l RMSE with the EBM's beside them."""
+    h, e = r["heldout_rmse"], d["ebm_rmse"]
+    return ", ".join(f"{h[c]:.3g} ({e[c]:.3g})" for c in ("T_v_K", "T_l_K"))
 
 
 def _markdown(s) -> str:
-    layer, wall = s["layer"], s.get("wall", DRY_WALL)
+    layer, wall = s["layer"], s["wall"]
     share = LAYERS[layer][0]
     node = WALLS[wall][0] if WALLS[wall] else None  # the dry wall's fitted parameter, if any
     head = ("the dry wall's heat into the ullage (share 1)" if node is None
             else f"`{wall}`'s {node} fitted")
     lines = [f"# MHTB leave one test out: {head}, the layer's wall share 1, `{layer}`'s 1/delta and {share} "
-             f"fitted (initial state: {s.get('initial', 'metadata')})", "",
+             f"fitted (initial state: {s['initial']})", "",
              "| calibrated -> predicted | round (sigma p, T_v, T_l) | " + ("R_s [K/W], " if node else "")
              + f"1/delta [1/m], {share} | status | training RMSE p [Pa], T_v [K], T_l [K] | "
              "p RMSE [Pa] (all samples) | EBM [Pa] | held-out T_v, T_l RMSE [K] (EBM) |",

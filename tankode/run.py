@@ -702,15 +702,8 @@ class Run:
         asked otherwise (:meth:`with_measured_initial`, ``--initial measured``).
         """
         out = []
-        obs = self.observations
-        if not len(obs) or obs.t_s[0] != self.t0_s:
-            return ()
-        for ch in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):
-            i = OBS_CHANNELS.index(ch)
-            if not obs.mask[0, i]:
-                continue
+        for ch, measured in self._samples_at_start().items():
             meta = self.initial.T_w0_K if ch == "T_w_K" else getattr(self.initial, ch)
-            measured = float(obs.values[0, i])
             sigma = self.noise_std[_NOISE_OF[ch]]
             if abs(measured - meta) > n_sigma * sigma:
                 where = f"{Path(self.path).with_suffix('.csv').name}, first row" if self.path else "first sample"
@@ -725,15 +718,16 @@ class Run:
         samples (:meth:`initial_disagreements`), e.g. MHTB P263968K, whose ullage reads 24.84 K
         at t = 0 against 21.01 K in its metadata.
         """
+        changes = self._samples_at_start()
+        return self.replace(initial=dataclasses.replace(self.initial, **changes)) if changes else self
+
+    def _samples_at_start(self) -> dict[str, float]:
+        """The initial state's channels (p_v, T_v, T_l, T_w) measured at exactly ``t0_s``, by name."""
         obs = self.observations
         if not len(obs) or obs.t_s[0] != self.t0_s:
-            return self
-        changes = {}
-        for ch in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):
-            i = OBS_CHANNELS.index(ch)
-            if obs.mask[0, i]:
-                changes[ch] = float(obs.values[0, i])
-        return self.replace(initial=dataclasses.replace(self.initial, **changes)) if changes else self
+            return {}
+        cols = {ch: OBS_CHANNELS.index(ch) for ch in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K")}
+        return {ch: float(obs.values[0, i]) for ch, i in cols.items() if obs.mask[0, i]}
 
     def until(self, t_end_s: float) -> "Run":
         """The run cut at ``t_end_s`` [s]: observations up to it, inputs changing before it.

@@ -57,23 +57,20 @@ class DryWallNode(Mechanism):
     signature = "T_v stays above T_l under a heat load (most at low fill); pressure rises faster; T_w lags"
 
     def heat_W(self, s, forcing, fluxes):
-        R_s = self.param(0, fluxes.Q_wv_W)
-        A_wv, L_c = fluxes.A_wv_m2, fluxes.L_c_m  # (env,)
-        hA = fluxes.theta_W_m2K[..., 2] * A_wv  # h_wv A_wv, W/K
-        Q_d = forcing.Q_aw_W * A_wv / (A_wv + fluxes.A_wl_m2)
-        num = hA * R_s * A_wv * (Q_d - fluxes.Q_wv_W)
-        den = 3.0 * L_c**2 + R_s * A_wv * hA
-        # den = 0 only with R_s = 0 (absent) on a vanished liquid line: no redistribution then
-        q = torch.where(den > 0.0, num / torch.where(den > 0.0, den, 1.0), 0.0)
+        hA = fluxes.theta_W_m2K[..., 2] * fluxes.A_wv_m2  # h_wv A_wv, W/K  # (env,)
+        q = hA * self.node_excess_K(self.param(0, fluxes.Q_wv_W), fluxes, forcing.Q_aw_W)
         return q, 0.0, -q
 
     @staticmethod
     def node_excess_K(R_s_K_per_W, fluxes, Q_aw_W):
-        """``T_d - T_w`` (K) of the dry wall over the lump at ``fluxes``, for reports and tests."""
-        A_wv, L_c = fluxes.A_wv_m2, fluxes.L_c_m
+        """``T_d - T_w`` (K) of the dry wall over the lump at ``fluxes``: ``q_v = h_wv A_wv (T_d - T_w)``."""
+        A_wv, L_c = fluxes.A_wv_m2, fluxes.L_c_m  # (env,)
         hA = fluxes.theta_W_m2K[..., 2] * A_wv
         Q_d = Q_aw_W * A_wv / (A_wv + fluxes.A_wl_m2)
-        return R_s_K_per_W * A_wv * (Q_d - fluxes.Q_wv_W) / (3.0 * L_c**2 + R_s_K_per_W * A_wv * hA)
+        num = R_s_K_per_W * A_wv * (Q_d - fluxes.Q_wv_W)
+        den = 3.0 * L_c**2 + R_s_K_per_W * A_wv * hA
+        # den = 0 only with R_s = 0 (absent) on a vanished liquid line: no redistribution then
+        return torch.where(den > 0.0, num / torch.where(den > 0.0, den, 1.0), 0.0)
 
 
 __all__ = ["DryWallNode"]
