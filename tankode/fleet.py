@@ -10,6 +10,7 @@ from torch import Tensor
 
 from .forcing import Forcing
 from .geometry import stack_geometries
+from .integrate import SimulationError
 from .run import Run
 from .schedule import INPUT_NAMES, merge_breakpoints
 from .wall import WallHeatCapacity, resolve_wall_heat_capacity
@@ -90,6 +91,9 @@ class Fleet:
         liquid branch even if slightly superheated (a metastable state), as measured runs have.
         The initial pressure is a sensor reading: the ``mechanisms``' pressure offsets (a bias,
         an inert gas) at (T_v0, V_v0) are removed from it to get the hydrogen's pressure.
+
+        Raises:
+            SimulationError: the offsets leave a non-positive hydrogen pressure.
         """
         ini = [r.initial for r in self.runs]
         V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
@@ -101,8 +105,10 @@ class Fleet:
                 off = m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l))
             p = p - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), p.shape)
         if (p <= 0).any():
-            raise ValueError(f"initial hydrogen pressure {p} Pa is not positive after removing the mechanisms' "
-                             "pressure offsets from the initial reading")
+            # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
+            # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
+            raise SimulationError(f"initial hydrogen pressure {p} Pa is not positive after removing the mechanisms' "
+                                  "pressure offsets from the initial reading", t_s=self.t0_s)
         return self.state_from(p, T_v, np.array([i.T_l_K for i in ini]), np.array([i.T_w0_K for i in ini]), V_l)
 
     def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:

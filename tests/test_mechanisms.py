@@ -12,7 +12,7 @@ from tankode.analytic import AnalyticFluid, analytic_state
 from tankode.closures import ReferenceClosure, ScaledClosure
 from tankode.forcing import Forcing
 from tankode.geometry import geometry_from_spec
-from tankode.integrate import integrate, state_scale
+from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.mechanisms import MECHANISMS, make_mechanism, mechanisms_from_spec, mechanisms_spec
 from tankode.mechanisms.noncondensable import R_J_PER_MOLK
 from tankode.model import TankModel
@@ -200,6 +200,11 @@ def test_sensor_offsets_enter_the_observation_and_the_initial_state():
     assert float(sol.observations[0, 0, 0] - model.observe(s[None])[0, 0]) == pytest.approx(p_inert, rel=1e-4)
     bias = simulate(run, mechanisms=[make_mechanism("pressure_sensor_bias", bias_Pa=-5e3)], output_dt_s=60.0)
     assert float(bias.observations[0, 0, 0]) == pytest.approx(run.initial.p_v_Pa, rel=1e-6)
+    # More inert gas than the reading allows is an infeasible parameter, not a bad run: a
+    # SimulationError (which a fit rejects as a trial point) at the start, naming the pressure.
+    too_much = 1.01 * run.initial.p_v_Pa * float(s[5]) / (R_J_PER_MOLK * run.initial.T_v_K)
+    with pytest.raises(SimulationError, match=r"initial hydrogen pressure \[-.*\] Pa is not positive.* at t = 0 s"):
+        simulate(run, mechanisms=[make_mechanism("noncondensable_gas", n_mol=too_much)], output_dt_s=60.0)
 
 
 def test_per_environment_values_match_separate_runs():
