@@ -172,7 +172,8 @@ def cmd_diagnose(args) -> int:
         split = LeaveOneRunOut()
     candidates = tuple(args.candidates) if args.candidates else DEFAULT_CANDIDATES
     weighting = ModelError() if args.weighting == "model-error" else SensorNoise()
-    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block)
+    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block,
+                             hold=tuple(args.hold))
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
     if d.cause:
@@ -275,6 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--block", type=float, default=120.0, metavar="SECONDS",
                     help="bootstrap block length of the held-out gain's interval in s (default 120; longer than the "
                          "residuals' correlation time: an hour for sparse real data such as MHTB's)")
+    dg.add_argument("--hold", nargs="+", default=[], metavar="COEFFICIENT",
+                    help="closure coefficients (h_vi h_li h_wv h_wl) whose multiplier stays 1: their correlation is "
+                         "trusted, not calibrated (when the report says an estimate trades off with a factor)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     dg.set_defaults(func=cmd_diagnose)

@@ -102,7 +102,7 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
         main(["simulate", "case9", "--out", str(tmp_path)])
 
 
-def test_diagnose_block_default_is_the_configs_and_reaches_it(tmp_path, monkeypatch, capsys):
+def test_diagnose_block_and_hold_reach_the_config(tmp_path, monkeypatch, capsys):
     import tankode.diagnosis
     from tankode.diagnosis import DiagnosisConfig
 
@@ -122,6 +122,12 @@ def test_diagnose_block_default_is_the_configs_and_reaches_it(tmp_path, monkeypa
     assert seen["config"].block_s == 3600.0
     assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--block", "0"]) == 2
     assert "block_s must be > 0 s, got 0.0" in capsys.readouterr().err
+    assert seen["config"].hold == ()
+    with pytest.raises(_Captured):
+        main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--hold", "h_wv", "h_vi"])
+    assert seen["config"].hold == ("h_wv", "h_vi")
+    assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--hold", "h_w"]) == 2
+    assert "hold: unknown coefficient(s) ['h_w']; allowed: h_vi, h_li, h_wv, h_wl" in capsys.readouterr().err
 
 
 def test_assimilate_memory_names_are_the_trainers_strategies():

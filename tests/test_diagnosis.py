@@ -48,6 +48,87 @@ def test_bootstrap_gain_interval_covers_the_truth():
     assert g0 == 0 and lo0 == 0 == hi0
 
 
+
+class _LinearProblem:
+    """A stand-in for ``Problem``: the pressure channel is ``X @ values`` (one run, sigma 1)."""
+
+    def __init__(self, X, y):
+        from types import SimpleNamespace
+
+        self.X, self.y, self.n_simulations = X, y, 0
+        measured = np.zeros((1, len(y), 5), bool)
+        measured[..., 0] = True
+        self.obs = SimpleNamespace(measured=measured)
+
+    def predict(self, params, values):
+        values = np.asarray(values, float)
+        out = np.zeros((*values.shape[:-1], 1, len(self.y), 5))
+        out[..., 0, :, 0] = values @ self.X.T
+        self.n_simulations += int(np.prod(values.shape[:-1]))
+        return out
+
+    def normalised_residuals(self, pred):
+        r = pred.copy()
+        r[..., 0, :, 0] -= self.y
+        return r
+
+
+def test_fit_correlation_is_the_least_squares_one_and_names_the_freedom_an_estimate_trades_off_with():
+    from tankode.diagnosis.diagnose import Candidate, Thresholds, _label, _unresolved
+    from tankode.diagnosis.fit import fit
+    from tankode.diagnosis.forward import FreeParam
+
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 1.0, 50)
+    # the mechanism's column nearly repeats the h_wv factor's; the third column is independent
+    X = np.stack([t, t + 0.05 * np.sin(7 * t), np.cos(3 * t)], axis=1)  # (T, 3)
+    y = X @ np.array([0.3, 0.2, -0.1]) + 0.01 * rng.standard_normal(len(t))
+    params = [FreeParam("closure", "ln_h_wv_factor", "1", -5.0, 5.0, 1.0),
+              FreeParam("vapor_leak", "mdot_kg_s", "kg/s", -5.0, 5.0, 1.0),
+              FreeParam("closure", "ln_h_li_factor", "1", -5.0, 5.0, 1.0)]
+    f = fit(_LinearProblem(X, y), params, np.zeros(3), np.ones((1, len(t)), bool))
+    cov = np.linalg.inv(X.T @ X)
+    expected = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    np.testing.assert_allclose(f.corr, expected, atol=1e-6)
+    # the fit stops once chi2 changes by < 0.01: far inside one standard error of the least-squares estimate
+    assert np.all(np.abs(f.values - np.linalg.lstsq(X, y, rcond=None)[0]) < 0.05 * f.std)
+    partner, c = f.strongest_partner("vapor_leak", "mdot_kg_s")
+    assert partner is params[0] and c == pytest.approx(expected[1, 0]) and c < -0.9
+
+    cand = Candidate("vapor_leak", score=1.0, score_rank=1, z_score=0.8,
+                     tradeoff={"with": _label(partner), "correlation": c})
+    assert _unresolved(cand, Thresholds()) == f"estimate/std 0.80 < 3.0 (it trades off with the h_wv factor: correlation {c:+.2f})"
+    cand.tradeoff = {"with": "the h_li factor", "correlation": 0.5}  # a weak partner is not blamed
+    assert _unresolved(cand, Thresholds()) == "estimate/std 0.80 < 3.0"
+    assert _label(params[1]) == "vapor_leak.mdot_kg_s"
+
+
+def test_a_held_closure_factor_stays_at_one_and_leaves_the_covariance():
+    from tankode.diagnosis import DiagnosisConfig
+    from tankode.diagnosis.fit import fit
+    from tankode.diagnosis.forward import closure_params
+
+    params = closure_params(hold=("h_wv",))
+    assert [(p.lower, p.upper) for p in params if p.name == "ln_h_wv_factor"] == [(0.0, 0.0)]
+    assert all(p.lower < 0 < p.upper for p in params if p.name != "ln_h_wv_factor")
+    with pytest.raises(ValueError, match=r"hold: unknown coefficient\(s\) \['h_w'\]"):
+        DiagnosisConfig(hold=("h_w",))
+    # the h_wv column nearly repeats h_li's: free, the two trade off; held, h_li is resolved
+    t = np.linspace(0.0, 1.0, 50)
+    X = np.stack([np.cos(3 * t), t, t + 0.05 * np.sin(7 * t), t ** 2], axis=1)  # (T, 4): h_vi, h_li, h_wv, h_wl
+    y = X @ np.array([0.1, 0.2, 0.0, -0.1])
+    problem, train = _LinearProblem(X, y), np.ones((1, len(t)), bool)
+    held = fit(problem, params, np.full(4, 0.5), train)
+    free = fit(problem, closure_params(), np.full(4, 0.5), train)
+    assert held.values[2] == 0.0 and held.std[2] == 0.0 and np.all(held.corr[2] == np.eye(4)[2])
+    np.testing.assert_allclose(held.values, [0.1, 0.2, 0.0, -0.1], atol=1e-3)
+    assert free.corr[1, 2] < -0.9
+    # exact data: chi2 = 0 and no inflation, so the standard errors are those of (X^T X)^-1 over the free columns
+    for f, cols in ((free, [0, 1, 2, 3]), (held, [0, 1, 3])):
+        expected = np.sqrt(np.diag(np.linalg.inv(X[:, cols].T @ X[:, cols])))
+        np.testing.assert_allclose(f.std[cols], expected, rtol=1e-4)
+    assert held.std[1] < free.std[1] / 3
+
 # -- the decision rule ---------------------------------------------------------------------------
 
 

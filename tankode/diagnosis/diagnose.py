@@ -45,7 +45,7 @@ from ..mechanisms import MECHANISMS
 from .data import CHANNELS, HoldOutTail, LeaveOneRunOut
 from .evidence import Score, bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
-from .forward import Problem, closure_params, mechanism_params
+from .forward import FreeParam, Problem, closure_params, mechanism_params
 from .residuals import heldout_terms, loss_from_terms, residual_report
 from .weighting import ModelError, SensorNoise, reweigh
 
@@ -136,6 +136,12 @@ class DiagnosisConfig:
             absorbs hidden mechanisms there, and the diagnosis of that simulator's fourteen
             runs is right on 4 with it against 5 without (three wrong names instead of
             "none"; experiments/README.md).
+        hold: coefficients (of ``h_vi``, ``h_li``, ``h_wv``, ``h_wl``) whose multiplier stays 1:
+            the closure's correlation is trusted for them and not calibrated. For when the report
+            says a mechanism's estimate trades off with a factor (the data fix only a combination
+            of the two): on the MHTB tests the dry wall node's sheet resistance and the h_wv
+            factor correlate at -1.00 (experiments/README.md). A held factor is an assumption
+            the report states, not something the data confirmed.
     """
 
     candidates: tuple[str, ...] = DEFAULT_CANDIDATES
@@ -149,6 +155,7 @@ class DiagnosisConfig:
     seed: int = 0
     stable_mixing: bool = False
     weighting: SensorNoise | ModelError = SensorNoise()
+    hold: tuple[str, ...] = ()
 
     def __post_init__(self):
         unknown = set(self.candidates) - set(MECHANISMS)
@@ -158,6 +165,7 @@ class DiagnosisConfig:
             raise ValueError(f"refit_top must be >= 1 or None, got {self.refit_top}")
         if not self.block_s > 0:
             raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
+        closure_params(hold=self.hold)  # raises on a coefficient it does not know
         if not isinstance(self.weighting, (SensorNoise, ModelError)):
             raise ValueError(f"weighting must be SensorNoise() or ModelError(), got {self.weighting!r}")
 
@@ -182,6 +190,8 @@ class Candidate:
     heldout_loss_by_channel: dict = field(default_factory=dict)
     explained: float = float("nan")
     heldout_estimate: dict = field(default_factory=dict)
+    # the fitted parameter most correlated with the presence parameter's estimate: {"with", "correlation"}
+    tradeoff: dict = field(default_factory=dict)
     passes: bool = False
     reasons: list = field(default_factory=list)
     notes: list = field(default_factory=list)  # how the refit went, when it departed from the usual path
@@ -297,7 +307,7 @@ def calibrate(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisCon
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs)
     problem = Problem(fleet, base_closure, tuple(fixed_mechanisms))
     folds = _Folds(problem, _split(config, fleet), config)
-    params = closure_params(config.stable_mixing)
+    params = closure_params(config.stable_mixing, config.hold)
     # The stable-mixing share has two basins (conduction-like and convection-like heat uptake
     # under a subcooled liquid, traded against h_li's factor). On another simulator's
     # pressurisation run the fit started at 0, and also one started at 1, ended at a share of
@@ -387,6 +397,7 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
             "residuals": residual_report(problem.sensor_obs, base_pred, folds.heldout),
             "fit_status": base.status, "failed_starts": folds.failed_starts,
             "weighting": config.weighting.describe(),
+            "held_factors": list(config.hold),
             "sigma": {name: {c: float(v) for c, v in zip(CHANNELS, row) if np.isfinite(v)}
                       for name, row in zip(obs.run_names, obs.sigma)},
         }
@@ -452,6 +463,9 @@ def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, co
     z = abs(vals[first]) / stds[first] if stds[first] > 0 else np.inf
     cand.refit = True
     cand.params, cand.params_std, cand.z_score = vals, stds, float(z)
+    partner = ext.strongest_partner(cand.mechanism, first)
+    if partner is not None:
+        cand.tradeoff = {"with": _label(partner[0]), "correlation": partner[1]}
     cand.likelihood_ratio, cand.delta_bic, cand.delta_aic = ic["likelihood_ratio"], ic["delta_bic"], ic["delta_aic"]
     cand.heldout_gain, cand.heldout_gain_ci = gain, ci
     cand.heldout_loss, cand.heldout_loss_by_channel = loss, dict(zip(CHANNELS, by.tolist()))
@@ -465,7 +479,7 @@ def _refit(cand: Candidate, sc: Score, problem, folds, base: Fit, base_terms, co
     if not ci[0] > th.gain_ci_low:
         reasons.append(f"gain interval low end {ci[0]:.3f} <= {th.gain_ci_low}")
     if not cand.z_score >= th.z_score:
-        reasons.append(f"estimate/std {cand.z_score:.2f} < {th.z_score}")
+        reasons.append(_unresolved(cand, th))
     if not explained >= th.explained:
         reasons.append(f"explains {explained:.0%} of the held-out excess loss < {th.explained:.0%}")
     if not reasons:  # only then is it worth the extra fits
@@ -492,6 +506,28 @@ def _stability(cand: Candidate, problem: Problem, folds: _Folds, config: Diagnos
                 reasons.append(f"unstable: {p.name} = {vc:.3g} on the calibration data but {vh:.3g} +- {sh:.2g} "
                                f"on the held-out data{f' of fold {k + 1}' if len(fold_fits) > 1 else ''}")
     return reasons
+
+
+# Above this |correlation| an unresolved estimate is said to trade off with its partner: the
+# data then fix a combination of the two, and the partner's freedom is what leaves it unresolved
+# (at 0.9 the standard error is 2.3 times what it would be with the partner held fixed).
+TRADEOFF_CORRELATION = 0.9
+
+
+def _unresolved(cand: Candidate, th: Thresholds) -> str:
+    """The reason for a presence parameter not resolved, with the freedom it trades off with."""
+    reason = f"estimate/std {cand.z_score:.2f} < {th.z_score}"
+    c = cand.tradeoff.get("correlation", 0.0)
+    if abs(c) >= TRADEOFF_CORRELATION:
+        reason += f" (it trades off with {cand.tradeoff['with']}: correlation {c:+.2f})"
+    return reason
+
+
+def _label(p: FreeParam) -> str:
+    """A parameter as the report names it: ``the h_wv factor`` for a closure multiplier, ``owner.name`` else."""
+    if p.owner == "closure" and p.name.startswith("ln_") and p.name.endswith("_factor"):
+        return f"the {p.name[3:-7]} factor"
+    return p.name if p.owner == "closure" else p.label
 
 
 def _mech_values(f: Fit, mid: str, std: bool = False) -> dict:

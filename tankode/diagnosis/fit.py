@@ -39,7 +39,9 @@ class Fit:
         pred: ``(env, T, 5)`` predicted observations at the estimate (the whole run).
         jac: ``(n_data, n)`` Jacobian of the training residuals w.r.t. ``z = value / scale``.
         n_simulations: forward simulations spent.
-        status: scipy's message.
+        status: how the iterations ended.
+        corr: ``(n, n)`` correlation of the estimates, from the same covariance as ``std``
+            (identity rows and columns for a parameter held fixed).
     """
 
     params: list
@@ -51,6 +53,20 @@ class Fit:
     jac: np.ndarray
     n_simulations: int
     status: str
+    corr: np.ndarray
+
+    def strongest_partner(self, owner: str, name: str) -> tuple[FreeParam, float] | None:
+        """The other parameter whose estimate is most correlated with ``owner.name``'s, and the correlation.
+
+        A presence parameter that is not resolved (its standard error comparable to its value)
+        usually trades off with one other freedom: this names it. ``None`` with a single parameter.
+        """
+        i = next(k for k, p in enumerate(self.params) if p.owner == owner and p.name == name)
+        others = [k for k in range(len(self.params)) if k != i]
+        if not others:
+            return None
+        k = max(others, key=lambda k: abs(self.corr[i, k]))
+        return self.params[k], float(self.corr[i, k])
 
     def value(self, owner: str, name: str) -> float:
         for p, v in zip(self.params, self.values):
@@ -103,12 +119,19 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
         pred = problem.predict(params, z * scale)
     chi2 = float(r @ r)
     std = np.zeros(len(params))
+    corr = np.eye(len(params))
     free = hi > lo  # a degenerate box holds a parameter fixed: no uncertainty, not in the covariance
     if free.any():
         dof = max(n_data - int(free.sum()), 1)
         cov = np.linalg.pinv(jac[:, free].T @ jac[:, free]) * max(1.0, chi2 / dof)
-        std[free] = np.sqrt(np.clip(np.diag(cov), 0, None)) * scale[free]
-    return Fit(list(params), z * scale, std, chi2, n_data, pred, jac, problem.n_simulations - start, status)
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std[free] = sd * scale[free]
+        # A parameter the data do not move at all (a zero Jacobian column: sd = 0) correlates with nothing.
+        inv = np.divide(1.0, sd, out=np.zeros_like(sd), where=sd > 0)
+        c = cov * np.outer(inv, inv)
+        np.fill_diagonal(c, 1.0)
+        corr[np.ix_(free, free)] = np.clip(c, -1.0, 1.0)
+    return Fit(list(params), z * scale, std, chi2, n_data, pred, jac, problem.n_simulations - start, status, corr)
 
 
 def _jacobian(residual, z: np.ndarray, r: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

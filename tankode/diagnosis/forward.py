@@ -49,16 +49,24 @@ class FreeParam:
         return f"{self.owner}.{self.name}"
 
 
-def closure_params(stable_mixing: bool = False) -> list[FreeParam]:
+def closure_params(stable_mixing: bool = False, hold: tuple[str, ...] = ()) -> list[FreeParam]:
     """The baseline's degrees of freedom: four log-multipliers of the coefficients (and the stable-mixing share).
 
     The share (``ScaledClosure``, with ``stable_mixing=True``) is a shape freedom: how much heat
     a liquid colder than the interface takes up, from conduction (0, the reference) to the
     symmetric natural convection law (1). On another simulator's runs with pressurisation or a
     cold fill, its absence leaves the calibrated baseline 20-40 sigma off (experiments/README.md).
+
+    Args:
+        stable_mixing: add the share.
+        hold: coefficients of ``THETA`` whose multiplier stays 1 (a degenerate box at ln 1 = 0):
+            the closure's own correlation is trusted for them.
     """
-    multipliers = [FreeParam("closure", f"ln_{n}_factor", "1", -LOG_FACTOR_BOUND, LOG_FACTOR_BOUND, LOG_FACTOR_SCALE)
-                   for n in THETA]
+    unknown = set(hold) - set(THETA)
+    if unknown:
+        raise ValueError(f"hold: unknown coefficient(s) {sorted(unknown)}; allowed: {', '.join(THETA)}")
+    bound = {n: (0.0, 0.0) if n in hold else (-LOG_FACTOR_BOUND, LOG_FACTOR_BOUND) for n in THETA}
+    multipliers = [FreeParam("closure", f"ln_{n}_factor", "1", *bound[n], LOG_FACTOR_SCALE) for n in THETA]
     return multipliers + ([FreeParam("closure", "stable_mixing", "1", 0.0, 1.0, MIXING_SCALE)] if stable_mixing else [])
 
 

@@ -122,9 +122,12 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
         if b == 0 and not ext.get(ch):
             continue
         L.append(f"| {ch} | {b:.3g} | {ext[ch]:.3g} |" if ch in ext else f"| {ch} | {b:.3g} | |")
+    held_factors = d.baseline["held_factors"]
     L += ["", "## What the calibrated baseline gets wrong", "",
           "Closure factors: " + ", ".join(f"{k} x{v:.3g}" if k.endswith("_factor") else f"{k} {v:.3g}"
-                                           for k, v in d.baseline["closure_factors"].items()) + ".", ""]
+                                           for k, v in d.baseline["closure_factors"].items()) + "."
+          + (f" Held at 1 by the user (the correlation trusted, not calibrated): {', '.join(held_factors)}." if held_factors else ""),
+          ""]
     dropped = d.baseline.get("failed_starts", [])
     L += [f"Calibration start dropped: {line}." for line in dropped] + ([""] if dropped else [])
     for run, chans in d.baseline["residuals"]["runs"].items():
