@@ -102,7 +102,7 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
         main(["simulate", "case9", "--out", str(tmp_path)])
 
 
-def test_diagnose_block_and_hold_reach_the_config(tmp_path, monkeypatch, capsys):
+def test_diagnose_block_hold_and_refit_top_reach_the_config(tmp_path, monkeypatch, capsys):
     import tankode.diagnosis
     from tankode.diagnosis import DiagnosisConfig
 
@@ -128,6 +128,14 @@ def test_diagnose_block_and_hold_reach_the_config(tmp_path, monkeypatch, capsys)
     assert seen["config"].hold == ("h_wv", "h_vi")
     assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--hold", "h_w"]) == 2
     assert "hold: unknown coefficient(s) ['h_w']; allowed: h_vi, h_li, h_wv, h_wl" in capsys.readouterr().err
+    assert seen["config"].refit_top == DiagnosisConfig.refit_top == 5
+    with pytest.raises(_Captured):
+        main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--refit-top", "all"])
+    assert seen["config"].refit_top is None
+    assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--refit-top", "x"]) == 2
+    assert "--refit-top N|all: expected a whole number, got 'x'" in capsys.readouterr().err
+    assert main(["diagnose", str(tmp_path / "case1.json"), "--out", str(tmp_path / "d"), "--refit-top", "0"]) == 2
+    assert "refit_top must be >= 1 or None, got 0" in capsys.readouterr().err
 
 
 def test_assimilate_memory_names_are_the_trainers_strategies():
