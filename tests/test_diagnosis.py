@@ -272,6 +272,28 @@ def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_i
     assert [r for r in bias.reasons if not r.startswith("outranked by dry_wall_node")] == []
     assert bias.params["bias_Pa"] == pytest.approx(17.7e3, rel=0.1)
     assert d.cause is None and d.ranking[0].mechanism == "dry_wall_node"
+    # unresolved because the data fix only its combination with the h_wv factor
+    assert node.tradeoff["with"] == "the h_wv factor" and node.tradeoff["correlation"] < -0.99
+    assert "(it trades off with the h_wv factor: correlation -1.00)" in node.reasons[0]
+
+
+@pytest.mark.slow
+@needs_mhtb
+def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_dry_wall_node_is_named():
+    """Held at the published correlation, h_wv no longer absorbs the node: its sheet resistance is resolved."""
+    from tankode import read_run
+    from tankode.diagnosis import LeaveOneRunOut
+
+    runs = [read_run(MHTB / f"{n}.json").with_measured_initial() for n in ("P263968K", "P263981D")]
+    config = DiagnosisConfig(candidates=("pressure_sensor_bias", "dry_wall_node"), split=LeaveOneRunOut(),
+                             max_iterations=8, max_iterations_refit=8, block_s=3600.0, hold=("h_wv",))
+    d = diagnose(runs, config=config)
+    node = d.ranking[0]
+    assert d.cause == node.mechanism == "dry_wall_node", [(c.mechanism, c.reasons) for c in d.ranking]
+    assert d.baseline["closure_factors"]["h_wv_factor"] == 1.0 and d.baseline["held_factors"] == ["h_wv"]
+    # measured (seventeenth session): 12.6 +- 0.96 K/W on the folds, 12.1 on all data; held-out gain 0.60
+    assert 5.0 < node.params["R_sheet_K_per_W"] < 25.0 and node.z_score > 5.0
+    assert node.heldout_gain_ci[0] > 0.2
 
 
 @pytest.mark.slow

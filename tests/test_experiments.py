@@ -75,7 +75,7 @@ def test_minibatch_quick(tmp_path):
     assert (tmp_path / "summary.md").read_text().startswith("# Mini-batch study")
 
 
-@pytest.mark.slow  # 13-21 minutes even cut to 2 h: the diagnosis, fits of two long stiff runs, CLI runs
+@pytest.mark.slow  # 7-21 minutes even cut to 2 h: two diagnoses, fits of two long stiff runs, CLI runs
 @needs_mhtb
 def test_mhtb_quick(tmp_path):
     _run("mhtb.py", tmp_path, timeout_s=1800)
@@ -100,6 +100,12 @@ def test_mhtb_quick(tmp_path):
     assert set(summary["leave_one_out"]) == {"P263968K", "P263981D"}
     assert all(v["ok"] for v in summary["cli_predict"].values())
     assert (tmp_path / "diagnosis" / "model" / "model.json").exists()
+    # Step 2b: the diagnosis from the samples at t = 0 with the h_wv correlation held
+    m = summary["diagnosis_measured"]
+    assert m["held_factors"] == ["h_wv"] and m["baseline_closure_factors"]["h_wv_factor"] == 1.0
+    assert m["first"]["mechanism"] in {"pressure_sensor_bias", "dry_wall_node"}
+    assert set(m["heldout_rms_sigma"]) == {"P263968K", "P263981D"}
+    assert (tmp_path / "diagnosis_measured" / "report.md").exists()
     # Step 5: the boundary-layer-fed layer, calibrated on both tests and on each alone, saved with
     # its values and applied through `tankode predict` to the test it was not calibrated on.
     layer = summary["layer"]
