@@ -126,7 +126,8 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     L += ["", "## What the calibrated baseline gets wrong", "",
           "Closure factors: " + ", ".join(f"{k} x{v:.3g}" if k.endswith("_factor") else f"{k} {v:.3g}"
                                            for k, v in d.baseline["closure_factors"].items()) + "."
-          + (f" Held at 1 by the user (the correlation trusted, not calibrated): {', '.join(held_factors)}." if held_factors else ""),
+          + (f" Held at 1 by the user (the correlation trusted, not calibrated): {', '.join(held_factors)}."
+             if held_factors else ""),
           ""]
     dropped = d.baseline.get("failed_starts", [])
     L += [f"Calibration start dropped: {line}." for line in dropped] + ([""] if dropped else [])
