@@ -129,6 +129,33 @@ def test_a_held_closure_factor_stays_at_one_and_leaves_the_covariance():
         np.testing.assert_allclose(f.std[cols], expected, rtol=1e-4)
     assert held.std[1] < free.std[1] / 3
 
+
+def test_a_held_out_estimate_that_runs_to_its_bound_is_noted_not_taken_for_a_confirmation():
+    from types import SimpleNamespace
+
+    from tankode.diagnosis.diagnose import Candidate, _stability
+    from tankode.diagnosis.fit import fit
+    from tankode.diagnosis.forward import FreeParam
+
+    t = np.linspace(0.0, 1.0, 40)
+    X = np.stack([np.cos(3 * t), t], axis=1)  # (T, 2): a closure factor, the mechanism
+    y = X @ np.array([0.1, 0.9])
+    y[20:] += 0.2 * t[20:]  # the held-out half wants the mechanism at 1.1, beyond its bound 1
+    params = [FreeParam("closure", "ln_h_wv_factor", "1", -5.0, 5.0, 1.0),
+              FreeParam("vapor_leak", "mdot_kg_s", "kg/s", 0.0, 1.0, 1.0)]
+    problem = _LinearProblem(X, y)
+    train = np.zeros((1, len(t)), bool)
+    train[:, :20] = True
+    calibrated = fit(problem, params, np.zeros(2), train)
+    assert calibrated.values[1] == pytest.approx(0.9, abs=1e-3)
+    folds = SimpleNamespace(fold_fits=[calibrated], folds=[(train, ~train)])
+    cand = Candidate("vapor_leak", score=1.0, score_rank=1)
+    # within 25 % of 0.9, so not unstable; but the held-out data alone leave it at the bound
+    assert _stability(cand, problem, folds, DiagnosisConfig()) == []
+    assert cand.heldout_estimate == {"mdot_kg_s": [1.0]}
+    assert cand.notes == ["on the held-out data alone mdot_kg_s runs to its bound 1 (calibration data: 0.9); "
+                          "those data do not pin it"]
+
 # -- the decision rule ---------------------------------------------------------------------------
 
 

@@ -497,6 +497,7 @@ def _stability(cand: Candidate, problem: Problem, folds: _Folds, config: Diagnos
         params = [dataclasses.replace(p, lower=v, upper=v) if p.owner == "closure" else p
                   for p, v in zip(f.params, f.values)]
         h = fit(problem, params, f.values, held, config.max_iterations_refit)
+        where = f" of fold {k + 1}" if len(fold_fits) > 1 else ""
         for p, vc, sc, vh, sh in zip(f.params, f.values, f.std, h.values, h.std):
             if p.owner != cand.mechanism:
                 continue
@@ -504,7 +505,12 @@ def _stability(cand: Candidate, problem: Problem, folds: _Folds, config: Diagnos
             tol = config.thresholds.stability * abs(vc) + 3.0 * float(np.hypot(sc, sh))
             if not abs(vh - vc) <= tol:
                 reasons.append(f"unstable: {p.name} = {vc:.3g} on the calibration data but {vh:.3g} +- {sh:.2g} "
-                               f"on the held-out data{f' of fold {k + 1}' if len(fold_fits) > 1 else ''}")
+                               f"on the held-out data{where}")
+            elif vh in (p.lower, p.upper) and vc not in (p.lower, p.upper):
+                # Agreement within the held-out estimate's (large) error is not a confirmation:
+                # say that these data alone leave the parameter free.
+                cand.notes.append(f"on the held-out data{where} alone {p.name} runs to its bound {vh:.3g} "
+                                  f"(calibration data: {vc:.3g}); those data do not pin it")
     return reasons
 
 
