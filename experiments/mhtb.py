@@ -50,7 +50,7 @@ from tankode.diagnosis.forward import closure_params, mechanism_params  # noqa: 
 from tankode.fleet import Fleet  # noqa: E402
 from tankode.integrate import SimulationError  # noqa: E402
 from tankode.mechanisms import MECHANISMS  # noqa: E402
-from tankode.run import read_run  # noqa: E402
+from tankode.run_io import read_run  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 
@@ -364,7 +364,7 @@ def _diagnosis_summary(d):
 
 
 def _write_cut(run, folder):
-    from tankode.run import write_run
+    from tankode.run_io import write_run
 
     json_path, _ = write_run(run, folder)
     return json_path

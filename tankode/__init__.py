@@ -3,7 +3,7 @@
 Public surface (one entry point per job):
 
 * ``simulate(runs, closure=None) -> Solution``: the forward model (``tankode.simulate``).
-* ``read_run`` / ``write_run``: runs in the interchange format (``tankode.run``).
+* ``read_run`` / ``write_run``: runs in the interchange format (``tankode.run_io``).
 * ``get_case``: the paper's five environments (``tankode.cases``).
 * ``TankModel``, ``Fleet``: the right-hand side and a batch of tanks for it.
 * closures: ``ReferenceClosure`` (the paper's correlations), ``MLPClosure`` (the agent),
@@ -19,7 +19,8 @@ from .geometry import geometry_from_spec
 from .integrate import SimulationError
 from .model import TankModel
 from .properties import CoolPropFluid, Domain, load_surrogate
-from .run import InitialState, Observations, Run, RunFormatError, TankSpec, read_run, write_run
+from .run import InitialState, Observations, Run, RunFormatError, TankSpec
+from .run_io import read_run, write_run
 from .schedule import Schedule
 from .simulate import Solution, simulate
 from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, NoGradient

@@ -12,7 +12,7 @@ from .closures import INPUT_SETS  # already loaded by the package's __init__
 
 def _load_case_or_run(spec: str):
     from .cases import CASES, get_case
-    from .run import read_run
+    from .run_io import read_run
 
     if spec in CASES:
         return get_case(spec), False
@@ -57,7 +57,7 @@ def _initial(run, how: str):
 
 def cmd_simulate(args) -> int:
     from .plotting import plot_run
-    from .run import write_run
+    from .run_io import write_run
     from .simulate import simulate
     from .synthetic import solution_to_runs
 
@@ -95,7 +95,7 @@ def cmd_assimilate(args) -> int:
     from trainers.assimilate import AssimilationConfig, Assimilator
     from trainers.memory import MEMORIES
 
-    from .run import read_run
+    from .run_io import read_run
     from .saved import load_model, save_model
 
     runs = [_initial(read_run(p), args.initial) for p in args.runs]
@@ -138,7 +138,7 @@ def cmd_assimilate(args) -> int:
 
 def cmd_predict(args) -> int:
     from .plotting import plot_run
-    from .run import read_run, write_run
+    from .run_io import read_run, write_run
     from .saved import load_model
     from .simulate import simulate
     from .synthetic import solution_to_runs
@@ -163,7 +163,7 @@ def cmd_predict(args) -> int:
 def cmd_diagnose(args) -> int:
     from .diagnosis import (DEFAULT_CANDIDATES, DiagnosisConfig, HoldOutTail, LeaveOneRunOut, ModelError, SensorNoise,
                             diagnose, write_report)
-    from .run import read_run
+    from .run_io import read_run
     from .saved import load_model
 
     runs = [_initial(read_run(p), args.initial) for p in args.runs]

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .run import OBS_CHANNELS, Observations, Run, read_timeseries_csv
+from .run import OBS_CHANNELS, Observations, Run
+from .run_io import read_timeseries_csv
 
 
 def read_peer_prediction(path, fluid: str = "ParaHydrogen") -> Observations:

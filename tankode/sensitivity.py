@@ -175,14 +175,14 @@ def _as_run(case_or_run):
     if isinstance(case_or_run, str):
         if case_or_run in CASES:
             return get_case(case_or_run)
-        from .run import read_run
+        from .run_io import read_run
 
         path = Path(case_or_run)
         if not path.exists():
             raise ValueError(f"{case_or_run!r} is neither a case ({', '.join(CASES)}) nor an existing run JSON file")
         return read_run(path)
     if isinstance(case_or_run, Path):
-        from .run import read_run
+        from .run_io import read_run
 
         return read_run(case_or_run)
     return case_or_run

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from tankode.run import InitialState, Observations, Run, TankSpec, read_run, write_run
+from tankode.run import InitialState, Observations, Run, TankSpec
+from tankode.run_io import read_run, write_run
 from tankode.schedule import Schedule
 from tankode.simulate import simulate
 from tankode.solver import NoGradient

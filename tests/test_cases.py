@@ -8,7 +8,7 @@ from tankode.cases import CASES, case1
 from tankode.fleet import Fleet
 from tankode.model import TankModel
 from tankode.closures import ReferenceClosure
-from tankode.run import read_run
+from tankode.run_io import read_run
 from tankode.simulate import simulate
 from tankode.state import STATE_NAMES
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tankode.cli import build_parser, main
-from tankode.run import read_run
+from tankode.run_io import read_run
 
 from mhtb_data import MHTB, needs_mhtb
 

@@ -1,4 +1,4 @@
-"""Reading, validating and writing runs (tankode.run) and the input schedule (tankode.schedule)."""
+"""Runs (tankode.run), reading and writing them (tankode.run_io), and the input schedule (tankode.schedule)."""
 
 from __future__ import annotations
 
@@ -18,10 +18,8 @@ from tankode.run import (
     Run,
     RunFormatError,
     TankSpec,
-    read_run,
-    read_timeseries_csv,
-    write_run,
 )
+from tankode.run_io import read_run, read_timeseries_csv, write_run
 from tankode.schedule import Schedule, ScheduleError, merge_breakpoints
 
 from mhtb_data import MHTB, needs_mhtb
