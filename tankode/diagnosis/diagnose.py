@@ -497,7 +497,8 @@ def _stability(cand: Candidate, problem: Problem, folds: _Folds, config: Diagnos
         params = [dataclasses.replace(p, lower=v, upper=v) if p.owner == "closure" else p
                   for p, v in zip(f.params, f.values)]
         h = fit(problem, params, f.values, held, config.max_iterations_refit)
-        where = f" of fold {k + 1}" if len(fold_fits) > 1 else ""
+        held_runs = [name for name, row in zip(problem.obs.run_names, held) if row.any()]
+        where = f" of fold {k + 1} ({', '.join(held_runs)})" if len(fold_fits) > 1 else ""
         for p, vc, sc, vh, sh in zip(f.params, f.values, f.std, h.values, h.std):
             if p.owner != cand.mechanism:
                 continue
