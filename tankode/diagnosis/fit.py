@@ -61,7 +61,7 @@ class Fit:
         A presence parameter that is not resolved (its standard error comparable to its value)
         usually trades off with one other freedom: this names it. ``None`` with a single parameter.
         """
-        i = next(k for k, p in enumerate(self.params) if p.owner == owner and p.name == name)
+        i = self._index(owner, name)
         others = [k for k in range(len(self.params)) if k != i]
         if not others:
             return None
@@ -69,9 +69,12 @@ class Fit:
         return self.params[k], float(self.corr[i, k])
 
     def value(self, owner: str, name: str) -> float:
-        for p, v in zip(self.params, self.values):
+        return float(self.values[self._index(owner, name)])
+
+    def _index(self, owner: str, name: str) -> int:
+        for k, p in enumerate(self.params):
             if p.owner == owner and p.name == name:
-                return float(v)
+                return k
         raise KeyError(f"{owner}.{name}")
 
 
