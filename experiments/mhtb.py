@@ -356,11 +356,14 @@ def _diagnosis_summary(d):
                 "mechanism", "params", "params_std", "z_score", "delta_bic", "heldout_gain", "heldout_gain_ci",
                 "explained", "heldout_estimate", "tradeoff", "reasons")},
             # leave one test out: each test's held-out part is predicted by the fit on the other
-            "heldout_rms_sigma": {run: {ch: s["heldout"]["rms_sigma"] for ch, s in chans.items() if s["heldout"]}
-                                  for run, chans in model["residuals"]["runs"].items()},
-            "baseline_heldout_rms_sigma": {run: {ch: s["heldout"]["rms_sigma"] for ch, s in chans.items()
-                                                 if s["heldout"]}
-                                           for run, chans in d.baseline["residuals"]["runs"].items()}}
+            "heldout_rms_sigma": _heldout_rms_sigma(model["residuals"]),
+            "baseline_heldout_rms_sigma": _heldout_rms_sigma(d.baseline["residuals"])}
+
+
+def _heldout_rms_sigma(residuals):
+    """Held-out RMS in sensor sigmas per run and channel, from a ``residual_report``."""
+    return {run: {ch: s["heldout"]["rms_sigma"] for ch, s in chans.items() if s["heldout"]}
+            for run, chans in residuals["runs"].items()}
 
 
 def _write_cut(run, folder):
