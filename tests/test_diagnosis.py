@@ -50,7 +50,8 @@ def test_bootstrap_gain_interval_covers_the_truth():
 
 
 class _LinearProblem:
-    """A stand-in for ``Problem``: the pressure channel is ``X @ values`` (one run, sigma 1)."""
+    """A stand-in for ``Problem``: the pressure channel is ``X @ values`` (one run, sigma 1);
+    columns of ``X`` beyond the parameters given are absent (0), as a mechanism not fitted."""
 
     def __init__(self, X, y):
         from types import SimpleNamespace
@@ -62,6 +63,7 @@ class _LinearProblem:
 
     def predict(self, params, values):
         values = np.asarray(values, float)
+        values = np.concatenate([values, np.zeros((*values.shape[:-1], self.X.shape[1] - values.shape[-1]))], -1)
         out = np.zeros((*values.shape[:-1], 1, len(self.y), 5))
         out[..., 0, :, 0] = values @ self.X.T
         self.n_simulations += int(np.prod(values.shape[:-1]))
@@ -101,6 +103,36 @@ def test_fit_correlation_is_the_least_squares_one_and_names_the_freedom_an_estim
     cand.tradeoff = {"with": "the h_li factor", "correlation": 0.5}  # a weak partner is not blamed
     assert _unresolved(cand, Thresholds()) == "estimate/std 0.80 < 3.0"
     assert _label(params[1]) == "vapor_leak.mdot_kg_s"
+
+
+def test_the_score_test_does_not_let_a_factor_held_on_its_bound_mimic_the_mechanism():
+    """Constrained score: at a baseline whose h_wv factor sits on the bound the data pull it
+    beyond, a mechanism with the same signature is the only way further; its statistic is the
+    exact chi2 drop of the joint linear fit with that factor on its bound (Frisch-Waugh), where
+    projecting the bound factor out, as before, gave 0."""
+    from tankode.diagnosis.evidence import score_tests
+    from tankode.diagnosis.fit import fit
+    from tankode.diagnosis.forward import FreeParam, mechanism_params
+
+    t = np.linspace(0.0, 1.0, 60)
+    a, b = np.cos(3 * t), t + 0.3 * t ** 2  # a free factor, a factor that runs to its bound
+    step = mechanism_params("vapor_leak")[0].scale
+    X = np.stack([a, b, b / step], axis=1)  # (T, 3): the mechanism repeats b's signature per unit scale
+    y = 0.2 * a + 3.0 * b
+    params = [FreeParam("closure", "ln_h_vi_factor", "1", -5.0, 5.0, 1.0),
+              FreeParam("closure", "ln_h_wv_factor", "1", -1.0, 1.0, 1.0)]
+    problem, train = _LinearProblem(X, y), np.ones((1, len(t)), bool)
+    base = fit(problem, params, np.zeros(2), train)
+    assert base.values[1] == 1.0
+    r = base.pred[0, :, 0] - y
+    assert list(base.nuisance_free(r)) == [True, False]
+    (score,) = score_tests(problem, base, ["vapor_leak"], train)
+    A = np.stack([a, b / step], axis=1)  # h_wv on its bound: the joint fit moves h_vi and the mechanism
+    coef = np.linalg.lstsq(A, y - b, rcond=None)[0]
+    chi2_joint = float(np.sum((A @ coef - (y - b)) ** 2))
+    assert score.statistic == pytest.approx(base.chi2 - chi2_joint, rel=1e-6)
+    assert score.statistic > 0.5 * base.chi2 > 0
+    assert score.one_step["mdot_kg_s"] == pytest.approx(coef[1], rel=1e-6)
 
 
 def test_a_held_closure_factor_stays_at_one_and_leaves_the_covariance():
@@ -248,6 +280,15 @@ def _check_found(d, mechanism: str, value: float) -> None:
     name, estimate = next(iter(d.extended["params"].items()))
     assert estimate == pytest.approx(value[name] if isinstance(value, dict) else value, rel=0.25)
     assert top.heldout_gain > 0 and top.heldout_gain_ci[0] > 0
+    # its held-out RMS per run and channel is the extended model's on the held-out samples
+    # (both come from the calibration-only fit there), and the report tabulates it
+    from tankode.diagnosis import heldout_rms_sigma
+    from tankode.diagnosis.report import markdown
+
+    assert top.heldout_rms_sigma == heldout_rms_sigma(d.extended["residuals"])
+    run = d.runs[0]
+    p_base, p_ext = heldout_rms_sigma(d.baseline["residuals"])[run]["p_v_Pa"], top.heldout_rms_sigma[run]["p_v_Pa"]
+    assert f"| {run} | p_v_Pa | {p_base:.2f} | {p_ext:.2f} |" in markdown(d, [])
 
 
 @pytest.mark.parametrize(
@@ -314,13 +355,17 @@ def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_i
     assert d.cause is None and d.ranking[0].mechanism == "dry_wall_node"
     # unresolved because the data fix only its combination with the h_wv factor
     assert node.tradeoff["with"] == "the h_wv factor" and node.tradeoff["correlation"] < -0.99
-    assert "(it trades off with the h_wv factor: correlation -1.00)" in node.reasons[0]
+    assert node.reasons[0].endswith(f"(it trades off with the h_wv factor: correlation {node.tradeoff['correlation']:+.2f})")
 
 
 @pytest.mark.slow
 @needs_mhtb
-def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_dry_wall_node_is_named():
-    """Held at the published correlation, h_wv no longer absorbs the node: its sheet resistance is resolved."""
+def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_node_leads_but_its_shell_differs_per_test():
+    """Held at the published correlation, h_wv no longer absorbs the node: its sheet resistance is
+    resolved, and it is first by score, dBIC and held-out gain. It is not named: each test alone,
+    under the closure calibrated on the other, puts the shell elsewhere (measured, eighteenth
+    session: 28 and 5.5 K/W against 13 and 18). The seventeenth session named it: one fold's fit
+    had stopped in a minimum with 25 times the chi2 of the one the all-data start reaches."""
     from tankode import read_run
     from tankode.diagnosis import LeaveOneRunOut
 
@@ -329,14 +374,12 @@ def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_dry_wall
                              max_iterations=8, max_iterations_refit=8, block_s=3600.0, hold=("h_wv",))
     d = diagnose(runs, config=config)
     node = d.ranking[0]
-    assert d.cause == node.mechanism == "dry_wall_node", [(c.mechanism, c.reasons) for c in d.ranking]
+    assert node.mechanism == "dry_wall_node" and node.score_rank == 1, [(c.mechanism, c.reasons) for c in d.ranking]
     assert d.baseline["closure_factors"]["h_wv_factor"] == 1.0 and d.baseline["held_factors"] == ["h_wv"]
-    # measured (seventeenth session): 12.6 +- 0.96 K/W on the folds, 12.1 on all data; held-out gain 0.60
     assert 5.0 < node.params["R_sheet_K_per_W"] < 25.0 and node.z_score > 5.0
-    assert node.heldout_gain_ci[0] > 0.2
-    # the 25 % fill test alone, under the closure calibrated on the other, leaves R_s free: said, not hidden
-    assert any(n.startswith("on the held-out data of fold 1 (P263968K) alone R_sheet_K_per_W runs to its bound 1e+03")
-               for n in node.notes), node.notes
+    assert node.heldout_gain_ci[0] > 0.2 and node.explained > 0.5
+    assert d.cause is None and node.reasons and all(r.startswith("unstable: R_sheet_K_per_W") for r in node.reasons)
+    assert any(r.endswith("on the held-out data of fold 2 (P263981D)") for r in node.reasons), node.reasons
 
 
 @pytest.mark.slow

@@ -12,12 +12,13 @@ from .evidence import bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
 from .forward import Problem
 from .report import write_report
-from .residuals import ljung_box, residual_report
+from .residuals import heldout_rms_sigma, ljung_box, residual_report
 from .weighting import ModelError, SensorNoise
 
 __all__ = [
     "DEFAULT_CANDIDATES", "Candidate", "Diagnosis", "DiagnosisConfig", "Fit", "HoldOutTail", "LeaveOneRunOut", "ModelError", "Observed", "Problem",
     "SensorNoise",
-    "Thresholds", "bootstrap_gain", "calibrate", "diagnose", "fit", "information_criteria", "ljung_box",
+    "Thresholds", "bootstrap_gain", "calibrate", "diagnose", "fit", "heldout_rms_sigma", "information_criteria",
+    "ljung_box",
     "residual_report", "score_tests", "write_report",
 ]

@@ -68,6 +68,17 @@ class Fit:
         k = max(others, key=lambda k: abs(self.corr[i, k]))
         return self.params[k], float(self.corr[i, k])
 
+    def nuisance_free(self, r: np.ndarray) -> np.ndarray:
+        """Which parameters may still move at the estimate ``(n,)`` bool, given its training residuals ``r``.
+
+        A parameter held by a degenerate box, or on a bound that the data pull it beyond, is
+        locally fixed (the active set of the fit's own iterations); the others are free.
+        """
+        scale = np.array([p.scale for p in self.params])
+        lo = np.array([p.lower for p in self.params]) / scale
+        hi = np.array([p.upper for p in self.params]) / scale
+        return _free(self.values / scale, self.jac.T @ r, lo, hi)
+
     def value(self, owner: str, name: str) -> float:
         return float(self.values[self._index(owner, name)])
 
@@ -154,6 +165,16 @@ def _jacobian(residual, z: np.ndarray, r: np.ndarray, lo: np.ndarray, hi: np.nda
     return ((R[1:] - R[0]) / h[:, None]).T
 
 
+def _free(z: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Not in the active set: a variable on a bound whose descent direction (``-g``, ``g`` the
+    gradient of chi2 / 2) leaves the box stays there, and a degenerate box holds it.
+
+    "On a bound" allows a relative 1e-9, since ``z`` may have been through ``value / scale``.
+    """
+    tol = 1e-9 * np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))
+    return ~(((z <= lo + tol) & (g > 0)) | ((z >= hi - tol) & (g < 0))) & (hi > lo)
+
+
 def _levenberg_marquardt(residual, z0, lo, hi, max_iterations: int):
     """Projected Levenberg-Marquardt; returns ``(z, r, jac at z or None, status)``."""
     z = z0.copy()
@@ -167,8 +188,7 @@ def _levenberg_marquardt(residual, z0, lo, hi, max_iterations: int):
     for it in range(1, max_iterations + 1):
         jac = _jacobian(residual, z, r, lo, hi)
         g = jac.T @ r  # gradient of chi2 / 2
-        # Active set: a variable on a bound whose descent direction leaves the box stays there.
-        free = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0))) & (hi > lo)  # a degenerate box holds it
+        free = _free(z, g, lo, hi)
         if not free.any():
             return z, r, jac, f"converged after {it - 1} iterations (every parameter held at a bound)"
         A = (jac.T @ jac)[np.ix_(free, free)]

@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 from ..saved import save_model  # noqa: E402
 from .data import CHANNELS  # noqa: E402
 from .diagnose import Diagnosis  # noqa: E402
+from .residuals import heldout_rms_sigma  # noqa: E402
 from .weighting import SensorNoise  # noqa: E402
 
 _UNITS = {"p_v_Pa": ("p_v", "bar", 1e-5), "T_v_K": ("T_v", "K", 1.0), "T_l_K": ("T_l", "K", 1.0),
@@ -122,6 +123,7 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
         if b == 0 and not ext.get(ch):
             continue
         L.append(f"| {ch} | {b:.3g} | {ext[ch]:.3g} |" if ch in ext else f"| {ch} | {b:.3g} | |")
+    L += _heldout_rms_table(d)
     held_factors = d.baseline["held_factors"]
     L += ["", "## What the calibrated baseline gets wrong", "",
           "Closure factors: " + ", ".join(f"{k} x{v:.3g}" if k.endswith("_factor") else f"{k} {v:.3g}"
@@ -146,6 +148,20 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     L += ["## Figures", ""] + [f"![{f}]({f})" for f in figures]
     L += ["", "The extended model is in `model/` (use it with `tankode simulate|assimilate|predict`)."]
     return "\n".join(L) + "\n"
+
+
+def _heldout_rms_table(d: Diagnosis) -> list[str]:
+    """Held-out RMS per run and channel, baseline against the first refitted candidate (named or not)."""
+    best = next((c for c in d.ranking if c.refit and c.heldout_rms_sigma), None)
+    if best is None:
+        return []
+    base = heldout_rms_sigma(d.baseline["residuals"])
+    role = "the cause" if best.mechanism == d.cause else "best refitted, not named"
+    L = ["", f"## Held-out RMS per run and channel [sensor sigma]: baseline and `{best.mechanism}` ({role})", "",
+         f"| run | channel | baseline | with `{best.mechanism}` |", "|---|---|---|---|"]
+    for run, chans in best.heldout_rms_sigma.items():
+        L += [f"| {run} | {ch} | {base[run][ch]:.2f} | {v:.2f} |" for ch, v in chans.items() if ch in base.get(run, {})]
+    return L
 
 
 def _plot_prediction(d: Diagnosis, e: int, path) -> None:

@@ -90,6 +90,12 @@ def residual_report(obs: Observed, pred: np.ndarray, heldout: np.ndarray) -> dic
     return {"runs": runs}
 
 
+def heldout_rms_sigma(report: dict) -> dict:
+    """``{run: {channel: RMS}}`` of the held-out residuals in noise sigmas, from a ``residual_report``."""
+    return {run: {ch: v["heldout"]["rms_sigma"] for ch, v in chans.items() if v["heldout"]}
+            for run, chans in report["runs"].items()}
+
+
 def heldout_terms(obs: Observed, pred: np.ndarray, heldout: np.ndarray, block_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Per-block sums of squared normalised residuals and counts, ``(n_blocks, 5)`` each.
 
@@ -119,4 +125,4 @@ def loss_from_terms(ss: np.ndarray, nn: np.ndarray) -> tuple[float, np.ndarray]:
     return float(per.sum()), per
 
 
-__all__ = ["residual_report", "ljung_box", "spans_outside", "heldout_terms", "loss_from_terms"]
+__all__ = ["residual_report", "heldout_rms_sigma", "ljung_box", "spans_outside", "heldout_terms", "loss_from_terms"]
