@@ -135,6 +135,57 @@ def test_the_score_test_does_not_let_a_factor_held_on_its_bound_mimic_the_mechan
     assert score.one_step["mdot_kg_s"] == pytest.approx(coef[1], rel=1e-6)
 
 
+class _TwoRunProblem:
+    """A stand-in for ``Problem`` with two runs of one parameter: the first responds linearly, the
+    second periodically (``sin(4 x t)``: local minima), as MHTB's two tests gave the dry wall node."""
+
+    t = np.linspace(0.1, 1.0, 40)
+
+    def __init__(self, truth: float):
+        from types import SimpleNamespace
+
+        self.n_simulations, self.fleet = 0, None
+        measured = np.zeros((2, len(self.t), 5), bool)
+        measured[..., 0] = True
+        self.obs = SimpleNamespace(measured=measured, run_names=["linear", "periodic"])
+        self.y = self.predict(None, np.array([truth]))[..., 0]  # (2, T)
+
+    def predict(self, params, values):
+        x = np.asarray(values, float)[..., :1, None]  # (..., 1, 1)
+        out = np.zeros((*x.shape[:-2], 2, len(self.t), 5))
+        out[..., 0, :, 0], out[..., 1, :, 0] = 3.0 * x[..., 0, :] * self.t, np.sin(4.0 * x[..., 0, :] * self.t)
+        self.n_simulations += 1
+        return out
+
+    def normalised_residuals(self, pred):
+        r = pred.copy()
+        r[..., 0] -= self.y
+        return r
+
+
+def test_a_leave_one_run_out_fit_also_starts_from_the_all_data_estimate():
+    """From the start alone, the fit to the periodic run stops in a local minimum (chi2 35); the
+    all-data fit, pinned by the linear run, reaches the truth, and from there so does the fold."""
+    from types import SimpleNamespace
+
+    from tankode.diagnosis.diagnose import _Folds
+    from tankode.diagnosis.fit import fit
+    from tankode.diagnosis.forward import FreeParam
+
+    problem = _TwoRunProblem(truth=3.0)
+    params = [FreeParam("vapor_leak", "x", "1", 0.0, 10.0, 1.0)]
+    runs = np.eye(2, dtype=bool)[:, :, None].repeat(len(problem.t), axis=2)  # (run, env, T): run k's samples
+    split = SimpleNamespace(folds=lambda fleet, obs: [(runs[1], runs[0]), (runs[0], runs[1])],
+                            describe=lambda: "leave one run out")
+    alone = fit(problem, params, np.array([1.0]), runs[1])
+    assert alone.values[0] == pytest.approx(1.03, abs=0.02) and alone.chi2 > 30  # the local minimum
+    folds = _Folds(problem, split, DiagnosisConfig())
+    evidence, _ = folds.run(params, np.array([1.0]), 15)
+    assert evidence.values[0] == pytest.approx(3.0, abs=1e-4)
+    periodic_fold = folds.fold_fits[0]  # trained on the periodic run
+    assert periodic_fold.values[0] == pytest.approx(3.0, abs=1e-4) and periodic_fold.chi2 < 1e-6
+
+
 def test_a_held_closure_factor_stays_at_one_and_leaves_the_covariance():
     from tankode.diagnosis import DiagnosisConfig
     from tankode.diagnosis.fit import fit
