@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..integrate import SimulationError
-from .fit import Fit
+from .fit import Fit, normalised_box
 from .forward import FreeParam, Problem, mechanism_params
 from .residuals import loss_from_terms
 
@@ -79,8 +79,7 @@ def score_tests(problem: Problem, baseline: Fit, candidates: list[str], train: n
         U = -St.T @ r
         info = St.T @ St
         step = np.linalg.pinv(info) @ U  # normalised units
-        lo = np.array([p.lower for p in ps]) / np.array([p.scale for p in ps])
-        hi = np.array([p.upper for p in ps]) / np.array([p.scale for p in ps])
+        _, lo, hi = normalised_box(ps)
         feasible = np.clip(step, lo, hi)
         stat = float(U @ np.linalg.pinv(info) @ U) if np.allclose(feasible, step) else float(
             max(0.0, 2 * (U @ feasible) - feasible @ info @ feasible))

@@ -74,9 +74,7 @@ class Fit:
         A parameter held by a degenerate box, or on a bound that the data pull it beyond, is
         locally fixed (the active set of the fit's own iterations); the others are free.
         """
-        scale = np.array([p.scale for p in self.params])
-        lo = np.array([p.lower for p in self.params]) / scale
-        hi = np.array([p.upper for p in self.params]) / scale
+        scale, lo, hi = normalised_box(self.params)
         return _free(self.values / scale, self.jac.T @ r, lo, hi)
 
     def value(self, owner: str, name: str) -> float:
@@ -102,9 +100,7 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
     Raises:
         SimulationError: the model cannot even be integrated at the starting point.
     """
-    scale = np.array([p.scale for p in params])
-    lo = np.array([p.lower for p in params]) / scale
-    hi = np.array([p.upper for p in params]) / scale
+    scale, lo, hi = normalised_box(params)
     z0 = np.clip(np.asarray(x0, float) / scale, lo, hi)
     sel = train[:, :, None] & problem.obs.measured  # (env, T, 5)
     n_data = int(sel.sum())
@@ -146,6 +142,12 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
         np.fill_diagonal(c, 1.0)
         corr[np.ix_(free, free)] = np.clip(c, -1.0, 1.0)
     return Fit(list(params), z * scale, std, chi2, n_data, pred, jac, problem.n_simulations - start, status, corr)
+
+
+def normalised_box(params: list[FreeParam]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(scale, lower / scale, upper / scale)``, each ``(n,)``: the box the fit variables ``z = value / scale`` live in."""
+    scale = np.array([p.scale for p in params], dtype=float)
+    return scale, np.array([p.lower for p in params]) / scale, np.array([p.upper for p in params]) / scale
 
 
 def _jacobian(residual, z: np.ndarray, r: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
