@@ -292,16 +292,13 @@ class _Folds:
                     self.failed_starts.append(f"{params[i].name} = {v:g}: {' '.join(str(e).split())}")
             return min(fits, key=lambda f: f.chi2)
 
-        if len(self.folds) == 1:
-            evidence = best(self.folds[0][0])
-            fold_fits = [evidence]
-        else:
-            # Each fold's fit also starts from the all-data estimate. One start is not enough on
-            # real data: on the MHTB tests the dry wall node's fit to P263968K alone ended at
-            # chi2 2049 from the score's one-step estimate and at 83.5 from a start nearer the
-            # all-data estimate, two minima with different closure factors (experiments/README.md).
-            evidence = best(self.evidence_mask)
-            fold_fits = [best(train, also=evidence.values) for train, _ in self.folds]
+        evidence = best(self.evidence_mask)
+        # With several folds each fold's fit also starts from the all-data estimate. One start is
+        # not enough on real data: on the MHTB tests the dry wall node's fit to P263968K alone
+        # ended at chi2 2049 from the score's one-step estimate and at 83.5 from a start nearer
+        # the all-data estimate, two minima with different closure factors (experiments/README.md).
+        fold_fits = [evidence] if len(self.folds) == 1 else [best(train, also=evidence.values)
+                                                             for train, _ in self.folds]
         self.fold_fits = fold_fits
         held_pred = np.zeros_like(evidence.pred)
         for f, (_, h) in zip(fold_fits, self.folds):
