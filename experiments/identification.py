@@ -54,12 +54,15 @@ def main(argv=None) -> dict:
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
     ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
+    ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
     config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start, seed=args.seed,
                                  memory=MEMORIES[args.memory]())
+    if args.iters is not None:
+        config = dataclasses.replace(config, iters=args.iters)
 
     run = get_case(CASE)
     if args.quick:

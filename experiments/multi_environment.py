@@ -69,12 +69,19 @@ def main(argv=None) -> dict:
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
     ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
+    ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
+    ap.add_argument("--iters-per-batch", type=int, default=None,
+                    help="AssimilationConfig.iters_per_batch (default: the config block's)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start,
                                  prior_weight=args.prior_weight, seed=args.seed,
                                  memory=MEMORIES[args.memory]())
+    if args.iters is not None:
+        config = dataclasses.replace(config, iters=args.iters)
+    if args.iters_per_batch is not None:
+        config = dataclasses.replace(config, iters_per_batch=args.iters_per_batch)
     (validation,) = _data([VALIDATION], args.quick, args.seed)
 
     agents, table = {}, {}
