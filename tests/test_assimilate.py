@@ -290,6 +290,39 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     assert len(events.Images("prediction/tank_b")) == len(result.reports) == 2
 
 
+
+def test_a_prediction_from_t0_that_fails_is_logged_not_raised(tmp_path):
+    """A fixed-window agent may not integrate the whole history (seen in a case 1 run at 60
+    iterations): the figure's failure is a warning and a text entry, and training goes on."""
+    import types
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from tankode.closures import MLPClosure, MLPConfig
+    from tankode.integrate import SimulationError
+    from trainers.assimilate import Assimilator
+    from trainers.logger import TrainingLogger
+
+    runs = [_data(_short_run(120.0, name=n), seed=i) for i, n in enumerate(("tank_a", "tank_b"))]
+    assimilator = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1), closure=MLPClosure(MLPConfig(seed=0)))
+    report = assimilator.run().reports[-1]
+
+    def failing_predict(*args, **kwargs):
+        raise SimulationError("right-hand side failed: liquid volume outside the tank", 42.0,
+                              torch.zeros(2, 7, dtype=torch.float64))
+
+    broken = types.SimpleNamespace(fleet=assimilator.fleet, model=assimilator.model, s0=assimilator.s0,
+                                   predict=failing_predict)
+    logger = TrainingLogger(tmp_path, [r.name for r in runs])
+    with pytest.warns(RuntimeWarning, match=r"window 1: .*could not be integrated.*at t = 42 s"):
+        logger.log_window(report, broken, None)
+    logger.close()
+    events = EventAccumulator(str(tmp_path), size_guidance={"images": 0, "tensors": 0})
+    events.Reload()
+    assert set(events.Tags()["images"]) == {"prediction/tank_a", "prediction/tank_b"}
+    (text,) = events.Tensors("prediction/failed/text_summary")
+    assert b"at t = 42 s" in text.tensor_proto.string_val[0]
+
 def test_assimilation_and_simulation_run_on_one_thread_and_restore_the_count():
     """Small tensors: extra torch threads only contend (README, speed); the caller's count comes back."""
     from tankode.closures import MLPClosure, MLPConfig

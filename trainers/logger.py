@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -10,6 +12,7 @@ import torch  # noqa: E402
 from torch.utils.tensorboard import SummaryWriter  # noqa: E402
 
 from tankode.closures import THETA_NAMES  # noqa: E402
+from tankode.integrate import SimulationError  # noqa: E402
 from tankode.solver import NoGradient  # noqa: E402
 
 from .cost import CHANNELS  # noqa: E402
@@ -20,7 +23,11 @@ class TrainingLogger:
 
     Scalars (step = window index): ``J/total``, ``J/<env>/<channel>``, ``h/<env>/<coefficient>``
     (window means, W/(m^2 K)), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
-    ``time/update_s``. Figure ``prediction/<env>``: pressure and temperatures over the window.
+    ``time/update_s``. Figure ``prediction/<env>``: the current agent's prediction from the
+    fleet's start to the window's end, with the data so far. A fixed-window agent has been fitted
+    to the newest window only and may be unable to integrate the whole history; that is logged
+    (a warning, text ``prediction/failed`` with the time and state, the figure with the data
+    alone), never raised: a figure must not stop the training.
     """
 
     def __init__(self, logdir, env_names):
@@ -45,27 +52,40 @@ class TrainingLogger:
         # One simulation of the whole fleet from t0 to the window's end serves every
         # environment's figure: it is the logging's dominant cost.
         t = torch.linspace(assimilator.fleet.t0_s, report.t1_s, 121, dtype=torch.float64)  # (121,)
-        with torch.no_grad():
-            obs = assimilator.model.observe(assimilator.predict(assimilator.s0, float(t[0]), t, NoGradient()))
+        obs = None
+        try:
+            with torch.no_grad():
+                obs = assimilator.model.observe(assimilator.predict(assimilator.s0, float(t[0]), t, NoGradient()))
+        except SimulationError as err:
+            message = f"window {k}: the agent's prediction from the start could not be integrated: {err}"
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+            w.add_text("prediction/failed", message, k)
         for e, name in enumerate(self.env_names):  # obs: (env, 121, 5)
-            w.add_figure(f"prediction/{name}", self._figure(assimilator.fleet.runs[e], t, obs[e], report.t1_s), k)
+            fig = self._figure(assimilator.fleet.runs[e], t, None if obs is None else obs[e], report.t1_s)
+            w.add_figure(f"prediction/{name}", fig, k)
         w.flush()
 
     @staticmethod
     def _figure(run, t, obs, t1):
+        """Pressure and temperatures, data and (``obs`` (121, 5), or None if it failed) prediction."""
         fig, (ax_p, ax_t) = plt.subplots(1, 2, figsize=(9, 3.2))
         tm = t.numpy() / 60
-        ax_p.plot(tm, obs[:, 0].numpy() / 1e5, "k-", label="agent (from t0)")
+        if obs is None:
+            ax_p.set_title("agent's prediction from t0 failed (see prediction/failed)", fontsize=8)
+        else:
+            ax_p.plot(tm, obs[:, 0].numpy() / 1e5, "k-", label="agent (from t0)")
         tp, vp = run.observations.channel("p_v_Pa")
         keep = tp <= t1
         ax_p.plot(tp[keep] / 60, vp[keep] / 1e5, "k.", ms=2, alpha=0.4, label="data")
         ax_p.set_xlabel("time [min]")
         ax_p.set_ylabel("p_v [bar]")
         for c, color in ((1, "tab:red"), (2, "tab:blue"), (3, "tab:gray")):
-            ax_t.plot(tm, obs[:, c].numpy(), "-", color=color, label=CHANNELS[c])
+            if obs is not None:
+                ax_t.plot(tm, obs[:, c].numpy(), "-", color=color, label=CHANNELS[c])
             tc, vc = run.observations.channel(CHANNELS[c])
             keep = tc <= t1
-            ax_t.plot(tc[keep] / 60, vc[keep], ".", color=color, ms=2, alpha=0.4)
+            ax_t.plot(tc[keep] / 60, vc[keep], ".", color=color, ms=2, alpha=0.4,
+                      label=CHANNELS[c] if obs is None else None)
         ax_t.set_xlabel("time [min]")
         ax_t.set_ylabel("temperature [K]")
         ax_p.legend(fontsize=7)
