@@ -14,6 +14,7 @@ import argparse
 import copy
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 
@@ -27,10 +28,12 @@ from tankode.cases import get_case  # noqa: E402
 from tankode.closures import INPUT_SETS, MLPClosure, MLPConfig  # noqa: E402
 from tankode.noise import noise_std  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
+from tankode.integrate import SimulationError  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
 from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
 from trainers.memory import MEMORIES  # noqa: E402
+from trainers.cost import CHANNELS  # noqa: E402
 from trainers.evaluate import closure_along, identification_error, rmse_by_channel  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
@@ -48,7 +51,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="two windows, 3 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/identification")
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
-    ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--window-start", choices=("model", "data", "joint"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--start-prior-sigmas", type=float, default=1.0, help="AssimilationConfig.start_prior_sigmas (window_start joint)")
     ap.add_argument("--seed", type=int, default=SEED, help="noise draw and weight initialisation seed")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
                     help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
@@ -59,7 +63,8 @@ def main(argv=None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
-    config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start, seed=args.seed,
+    config = dataclasses.replace(config, prior_weight=args.prior_weight, window_start=args.window_start,
+                                 start_prior_sigmas=args.start_prior_sigmas, seed=args.seed,
                                  memory=MEMORIES[args.memory]())
     if args.iters is not None:
         config = dataclasses.replace(config, iters=args.iters)
@@ -75,7 +80,8 @@ def main(argv=None) -> dict:
 
     def on_window(r):
         snapshots.append(copy.deepcopy(assimilator.closure))
-        print(f"window {r.index}: J {r.cost_before:.3g} -> {r.cost_after:.3g} ({r.wall_s:.0f} s) {r.note}", flush=True)
+        offset = f" start offset {[round(d, 2) for d in r.start_offset_sigmas[0]]} sigma" if r.start_offset_sigmas else ""
+        print(f"window {r.index}: J {r.cost_before:.3g} -> {r.cost_after:.3g} ({r.wall_s:.0f} s){offset} {r.note}", flush=True)
 
     start = time.perf_counter()
     result = assimilator.run(logdir=out / "tensorboard", on_window=on_window)
@@ -83,8 +89,14 @@ def main(argv=None) -> dict:
     agent = result.closure
     save_model(out / "agent", agent, run.fluid, {"trained_on": [CASE], "noise": NOISE, "config": config.to_json()})
 
-    pred = simulate(run, agent, t_eval=truth.t_s)
-    rmse = rmse_by_channel(pred.observations[0], truth.observations[0])
+    # A final agent that cannot integrate the hour is a result (NaN RMSE, the solver's message), not a crash.
+    try:
+        pred, prediction_error = simulate(run, agent, t_eval=truth.t_s), ""
+        rmse = rmse_by_channel(pred.observations[0], truth.observations[0])
+    except SimulationError as err:
+        pred, prediction_error = None, str(err).splitlines()[0]
+        rmse = {c: math.nan for c in CHANNELS}
+        print(f"the final agent cannot predict the hour: {prediction_error}", flush=True)
     std = noise_std(NOISE)
     rmse_over_std = {c: rmse[c] / std[k] for c, k in zip(rmse, ("p_v", "T_v", "T_l", "T_w", "H_l"))}
     u = run.inputs.at(truth.t_s.numpy())
@@ -96,8 +108,9 @@ def main(argv=None) -> dict:
         "case": CASE, "noise": NOISE, "config": json.loads(config.to_json()), "inputs": args.inputs,
         "train_wall_s": train_s,
         "windows": [{"index": r.index, "J_before": r.cost_before, "J_after": r.cost_after, "evals": r.n_evals,
-                     "iters": r.n_iters, "wall_s": r.wall_s, "note": r.note} for r in result.reports],
-        "rmse_vs_clean_truth": rmse, "rmse_over_noise_std": rmse_over_std,
+                     "iters": r.n_iters, "wall_s": r.wall_s, "note": r.note,
+                     "start_offset_sigmas": r.start_offset_sigmas} for r in result.reports],
+        "rmse_vs_clean_truth": rmse, "rmse_over_noise_std": rmse_over_std, "prediction_error": prediction_error,
         "identification_during_sloshing": {"final_agent": ident, "online": online},
         "acceptance": {
             "pressure_rmse_le_2_std": rmse_over_std["p_v_Pa"] <= 2.0,
@@ -160,11 +173,15 @@ def _figures(out, run, truth, pred, data, agent, snapshots, windows):
     tp, vp = data.observations.channel("p_v_Pa")
     axes[0].plot(tp / 60, vp / 1e5, ".", ms=2, color="0.6", label="data (high noise)")
     axes[0].plot(t, truth.observations[0, :, 0].numpy() / 1e5, "k-", label="truth")
-    axes[0].plot(t, pred.observations[0, :, 0].numpy() / 1e5, "--", color="tab:orange", label="final agent, from t = 0")
+    if pred is not None:
+        axes[0].plot(t, pred.observations[0, :, 0].numpy() / 1e5, "--", color="tab:orange", label="final agent, from t = 0")
+    else:
+        axes[0].set_title("the final agent cannot predict the hour (summary.json: prediction_error)", fontsize=8)
     axes[0].set_ylabel("p_v [bar]")
     for c, color, name in ((1, "tab:red", "T_v"), (2, "tab:blue", "T_l"), (3, "tab:gray", "T_w")):
         axes[1].plot(t, truth.observations[0, :, c].numpy(), "-", color=color, label=f"{name} truth")
-        axes[1].plot(t, pred.observations[0, :, c].numpy(), "--", color=color, label=f"{name} agent")
+        if pred is not None:
+            axes[1].plot(t, pred.observations[0, :, c].numpy(), "--", color=color, label=f"{name} agent")
     axes[1].set_ylabel("temperature [K]")
     for ax in axes:
         ax.set_xlabel("time [min]")

@@ -62,7 +62,8 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one short window, 2 iterations (CI smoke run)")
     ap.add_argument("--out", default="results/multi_environment")
-    ap.add_argument("--window-start", choices=("model", "data"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--window-start", choices=("model", "data", "joint"), default="model", help="AssimilationConfig.window_start")
+    ap.add_argument("--start-prior-sigmas", type=float, default=1.0, help="AssimilationConfig.start_prior_sigmas (window_start joint)")
     ap.add_argument("--seed", type=int, default=SEED, help="noise draws, weight initialisation and batch draws")
     ap.add_argument("--prior-weight", type=float, default=0.0, help="AssimilationConfig.prior_weight (0: paper)")
     ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
@@ -76,6 +77,7 @@ def main(argv=None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.replace(QUICK if args.quick else FULL, window_start=args.window_start,
+                                 start_prior_sigmas=args.start_prior_sigmas,
                                  prior_weight=args.prior_weight, seed=args.seed,
                                  memory=MEMORIES[args.memory]())
     if args.iters is not None:

@@ -345,3 +345,78 @@ def test_assimilation_and_simulation_run_on_one_thread_and_restore_the_count():
     finally:
         torch.set_num_threads(before)
     assert seen and set(seen) == {1}
+
+
+def test_window_start_sensitivity_moves_one_observed_quantity_at_a_time():
+    """M's column c shifts observation c by one noise sigma and the other four by little (the map
+    is the first-order change of a CoolProp state built at one pressure for both phases).
+
+    The liquid's own pressure is not checked: the model never uses it (only its rate, through
+    the index reduction), and the surrogate's liquid is so stiff that CoolProp's density at a
+    0.1 K warmer liquid reads 64 Pa off in it."""
+    from trainers.assimilate import Assimilator
+    from trainers.window_start import state_sensitivity
+
+    data = _data(_short_run(120.0), noise="clean")
+    a = Assimilator([data], AssimilationConfig(window_s=60.0))
+    with torch.no_grad():
+        s = a.predict(a.s0, 0.0, torch.tensor([0.0, 60.0], dtype=torch.float64), NoGradient())[:, -1]
+        # A quarter of the high noise, where the map is linear: at 1 sigma a 0.4 K ullage offset near
+        # saturation already moves the pressure by 0.05 sigma (second order, measured).
+        sigma = 0.25 * torch.tensor([[4000.0, 0.4, 0.4, 0.4, 0.001]], dtype=torch.float64)
+        M = state_sensitivity(a.fleet, a.model, s, sigma)  # (1, 7, 5)
+        y0 = a.model.observe(s)[0]
+        for c in range(5):
+            dy = (a.model.observe(s + M[:, :, c])[0] - y0) / sigma[0]
+            want = torch.zeros(5, dtype=torch.float64)
+            want[c] = 1.0
+            assert (dy - want).abs().max() < 0.03, (c, dy)
+        assert torch.equal(state_sensitivity(a.fleet, a.model, s, sigma * torch.tensor([1.0, 1, 0, 1, 1]))[..., 2],
+                           torch.zeros(1, 7, dtype=torch.float64))  # an unmeasured channel: no column
+
+
+def test_joint_window_start_recovers_a_drifted_state():
+    """window_start="joint": a window started 2 sigma too warm in the liquid and 3 sigma too low in
+    the level (a drifted carried state) fits the offset back from the data (the closure is right
+    and fixed). With a loose background (100 sigma) all of the drift is recovered; with beta = 1
+    the fitted offset is the stationary point of J_obs + J_b: the window's gradient in the offset
+    equals -delta / (beta^2 n) per channel (the background counts as 1/beta^2 samples of n)."""
+    from tankode.closures import ConstantClosure
+    from tankode.solver import Backprop
+    from trainers.assimilate import Assimilator
+    from trainers.window_start import StartEstimate, state_sensitivity
+
+    run = _short_run(120.0)
+    truth_closure = ConstantClosure([50.0, 200.0, 500.0, 1000.0])
+    (data,) = solution_to_runs(run, simulate(run, truth_closure), noise="clean")
+    delta = torch.tensor([[0.0, 0.0, 2.0, 0.0, -3.0]], dtype=torch.float64)
+    for prior_sigmas in (100.0, 1.0):
+        # The closure is the truth and has nothing to train: the offset is the only unknown.
+        cfg = AssimilationConfig(window_s=60.0, window_start="joint", start_prior_sigmas=prior_sigmas, iters=30)
+        a = Assimilator([data], cfg, closure=truth_closure)
+        window = Window.from_runs(a.fleet.runs, 60.0, 120.0)
+        with torch.no_grad():
+            s_true = a.predict(a.s0, 0.0, torch.tensor([0.0, 60.0], dtype=torch.float64), NoGradient())[:, -1]
+            M = state_sensitivity(a.fleet, a.model, s_true, window.inv_var.rsqrt())
+            s_drifted = s_true + torch.einsum("esc,ec->es", M, delta)
+        report, _, _ = a.update(1, s_drifted)
+        got = torch.tensor(report.start_offset_sigmas, dtype=torch.float64)
+        if prior_sigmas > 1:
+            assert (got + delta).abs().max() < 0.05, got
+            assert report.cost_after < 0.01 * report.cost_before
+            continue
+        est = StartEstimate(a.fleet, a.model, s_drifted, window, prior_sigmas)
+        with torch.no_grad():
+            est.delta.copy_(got)
+        t_eval = torch.cat([torch.tensor([60.0], dtype=torch.float64), window.t_s])
+        pred = a.model.observe(a.predict(est.state(), 60.0, t_eval, Backprop())[:, 1:])
+        (grad,) = torch.autograd.grad(cost(pred, window), est.delta)
+        n = (window.weights > 0).sum(1).double()
+        assert (got + delta).abs().max() > 0.2  # the background holds part of the drift back...
+        assert (grad + got / (prior_sigmas**2 * n)).abs().max() < 0.02 * float((got / n).abs().max()), (grad, got / n)
+    with pytest.raises(ValueError, match="start_prior_sigmas"):
+        AssimilationConfig(window_start="joint", start_prior_sigmas=0.0)
+    with pytest.raises(ValueError, match="mode='fixed'"):
+        AssimilationConfig(window_start="joint", mode="growing")
+    cfg = AssimilationConfig(window_start="joint", start_prior_sigmas=3.0)
+    assert AssimilationConfig.from_json(cfg.to_json()) == cfg

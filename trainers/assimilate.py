@@ -18,6 +18,11 @@ before the last input change, which would bend the line) and the state is rebuil
 with CoolProp; unmeasured channels keep the model's value. That stops an early agent's errors
 from drifting the state of every later window (the level moves ~7 mm per 0.3 K of liquid
 temperature, ten times the level noise), at the price of no longer penalising drift.
+With ``window_start="joint"`` the window starts from the model's carried state plus an offset
+in the five observed quantities that is fitted with the weights, held to the carried state by
+a Gaussian background term of ``start_prior_sigmas`` noise sigmas (``trainers/window_start.py``,
+4D-Var's background): the data correct the start where they resolve it, the carried state
+decides where they do not, and the next window starts from the end of the corrected trajectory.
 
 One L-BFGS per window: when a window's data arrive the objective changes, so the curvature
 pairs of the previous window are no secant pairs of the new objective; the optimiser (history,
@@ -49,8 +54,9 @@ from tankode.state import N_STATE
 from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
 from .evaluate import theta_along
-from .lbfgs import BoundedLBFGS, MiniBatch, ResetHistory, uniform_box
+from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
+from .window_start import StartEstimate
 
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
@@ -76,8 +82,11 @@ class AssimilationConfig:
             as a prior (as a sequential Bayesian update would carry it), which limits how far
             one window's data drag the agent (forgetting, over-fitting 60 noisy samples).
             0 = the paper's plain cost.
-        window_start: "data" or "model": where a fixed window's initial state comes from
-            (module docstring).
+        window_start: "model", "data" or "joint": where a fixed window's initial state comes
+            from (module docstring).
+        start_prior_sigmas: with ``window_start="joint"``, the background std of the carried
+            state in units of each channel's noise std (1: the carried state is worth one
+            sample per channel, so a window's ~60 samples decide the offset).
         gradient: ``Adjoint()`` (default; memory independent of the step count) or ``Backprop()``.
         memory: what a fixed window's update keeps of the earlier windows: ``Forget()`` (the
             paper: nothing) or ``LaplaceMemory()`` (a Laplace prior on the coefficients the
@@ -100,6 +109,7 @@ class AssimilationConfig:
     seed: int = 0
     prior_weight: float = 0.0
     window_start: str = "model"
+    start_prior_sigmas: float = 1.0
     gradient: Adjoint | Backprop = Adjoint()
     memory: Forget | LaplaceMemory = Forget()
     rtol: float = 1e-6
@@ -109,8 +119,10 @@ class AssimilationConfig:
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be a positive number of seconds, got {self.window_s}")
-        if self.window_start not in ("data", "model"):
-            raise ValueError(f"window_start must be 'data' or 'model', got {self.window_start!r}")
+        if self.window_start not in ("data", "model", "joint"):
+            raise ValueError(f"window_start must be 'model', 'data' or 'joint', got {self.window_start!r}")
+        if not (self.start_prior_sigmas > 0 and math.isfinite(self.start_prior_sigmas)):
+            raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
         if self.mode not in ("fixed", "growing"):
             raise ValueError(f"mode must be 'fixed' or 'growing', got {self.mode!r}")
         if self.iters < 1 or self.iters_per_batch < 1 or self.history_size < 1:
@@ -125,6 +137,8 @@ class AssimilationConfig:
             raise ValueError(f"gradient must be Adjoint() or Backprop(), got {self.gradient!r}")
         if not isinstance(self.memory, (Forget, LaplaceMemory)):
             raise ValueError(f"memory must be Forget() or LaplaceMemory(), got {self.memory!r}")
+        if self.window_start == "joint" and self.mode != "fixed":
+            raise ValueError("window_start='joint' needs mode='fixed' (a growing window starts from the run's initial state)")
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
@@ -139,6 +153,7 @@ class AssimilationConfig:
         d = json.loads(text)
         # Configurations written before the memory option existed trained with Forget().
         d.setdefault("memory", "Forget")
+        d.setdefault("start_prior_sigmas", 1.0)  # unused before window_start="joint" existed
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
                 raise ValueError(f"assimilation configuration: {key} {d[key]!r} is not one of {sorted(known)}")
@@ -162,6 +177,7 @@ class WindowReport:
     n_iters: int
     wall_s: float
     note: str = ""
+    start_offset_sigmas: list = field(default_factory=list)  # (env, 5) window_start="joint"'s fitted offset
 
 
 @dataclass
@@ -172,6 +188,12 @@ class AssimilationResult:
     config: AssimilationConfig
     reports: list[WindowReport] = field(default_factory=list)
 
+
+# window_start="joint": the offset's name among the trained parameters, and its box (noise
+# sigmas): wide enough for the drift seen on case 1 (level ~10 sigma), narrow enough to keep
+# the linear state map near where it was taken.
+_OFFSET = "window_start_offset"
+START_OFFSET_BOUND_SIGMAS = 30.0
 
 # Samples used for a data-informed window start: the last two minutes (12 samples at 10 s) average
 # the noise while a straight line still follows the tank's curvature.
@@ -232,7 +254,7 @@ class Assimilator:
         if self.config.mode == "growing" or k == 0:
             return self.fleet.t0_s, self.s0
         t_k = self.windows[k][0]
-        if self.config.window_start == "model":
+        if self.config.window_start in ("model", "joint"):  # joint: offset fitted in update()
             return t_k, s_next
         return t_k, self._data_corrected(s_next, *self.windows[k - 1])
 
@@ -272,15 +294,25 @@ class Assimilator:
         obs_index = torch.searchsorted(t_eval, window.t_s)
         start = time.perf_counter()
 
+        named = list(self.closure.named_parameters())
+        bounds = uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound)
+        estimate = None
+        if cfg.window_start == "joint" and cfg.mode == "fixed" and k > 0:
+            estimate = StartEstimate(self.fleet, self.model, s_start, window, cfg.start_prior_sigmas)
+            named.append((_OFFSET, estimate.delta))
+            bounds[_OFFSET] = Box(-START_OFFSET_BOUND_SIGMAS, START_OFFSET_BOUND_SIGMAS)
         anchor = [p.detach().clone() for p in self.closure.parameters()]
         remembering = isinstance(cfg.memory, LaplaceMemory)
         prior = Prior(self, self.memories) if remembering and self.memories else None
         duration_s = t1 - t_data0
 
         def loss(mask=None):
-            states = self.predict(s_start, t_start, t_eval, cfg.gradient)
+            s0 = s_start if estimate is None else estimate.state()
+            states = self.predict(s0, t_start, t_eval, cfg.gradient)
             pred = self.model.observe(states[:, obs_index])
             J = cost(pred, window, mask)
+            if estimate is not None:
+                J = J + estimate.penalty()
             if cfg.prior_weight > 0:
                 J = J + 0.5 * cfg.prior_weight * _mean_square_change(self.closure.parameters(), anchor)
             if prior is not None:
@@ -295,8 +327,7 @@ class Assimilator:
             n_outer, per_step = max(1, cfg.iters // cfg.iters_per_batch), cfg.iters_per_batch
         # A trial agent whose ODE (or its adjoint) cannot be integrated is an infeasible point
         # of the line search, not a failure of the update.
-        opt = BoundedLBFGS(self.closure, uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound),
-                           max_iter=per_step, history_size=cfg.history_size, batch=batch,
+        opt = BoundedLBFGS(named, bounds, max_iter=per_step, history_size=cfg.history_size, batch=batch,
                            reject=(SimulationError, AssertionError))
         with torch.no_grad():
             before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]),
@@ -315,6 +346,11 @@ class Assimilator:
                 n_evals += res.n_evals
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
+        offsets = []
+        if estimate is not None:
+            with torch.no_grad():
+                s_start = estimate.state()
+            offsets = (estimate.delta * estimate.measured).detach().tolist()
         with torch.no_grad():
             states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])
@@ -324,7 +360,7 @@ class Assimilator:
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
-                              n_evals, n_iters, time.perf_counter() - start, note)
+                              n_evals, n_iters, time.perf_counter() - start, note, offsets)
         return report, states[:, -1].detach().clone(), opt.state_dict()
 
     # -- the loop ------------------------------------------------------------------------------
