@@ -266,7 +266,8 @@ def test_laplace_memory_survives_an_interruption(tmp_path):
 
 
 def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_path):
-    """Per window: J per environment and channel, the four h, gradient norm, evaluations, a figure each."""
+    """Per window: J per environment and channel, the four h, gradient norm, evaluations, a figure
+    each, and (joint window starts) the fitted start offsets."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
@@ -274,7 +275,8 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     from trainers.cost import CHANNELS
 
     runs = [_data(_short_run(120.0, name=n), seed=i) for i, n in enumerate(("tank_a", "tank_b"))]
-    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1),
+    # Joint window starts: two environments' offsets, logged from the second window on.
+    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1, window_start="joint"),
                          closure=MLPClosure(MLPConfig(seed=0))).run(logdir=tmp_path)
     events = EventAccumulator(str(tmp_path), size_guidance={"images": 0, "scalars": 0})
     events.Reload()
@@ -288,6 +290,9 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     logged = [e.value for e in events.Scalars("J/total")]
     assert logged == pytest.approx([r.cost_after for r in result.reports])
     assert len(events.Images("prediction/tank_b")) == len(result.reports) == 2
+    offsets = events.Scalars("start_offset_sigma/tank_b/H_l_m")
+    assert [e.step for e in offsets] == [1] and result.reports[0].start_offset_sigmas == []
+    assert offsets[0].value == pytest.approx(result.reports[1].start_offset_sigmas[1][4])
 
 
 
