@@ -100,7 +100,8 @@ def cmd_assimilate(args) -> int:
 
     runs = [_initial(read_run(p), args.initial) for p in args.runs]
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
-                                seed=args.seed, memory=MEMORIES[args.memory]())
+                                seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
+                                start_prior_sigmas=args.start_prior_sigmas)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -251,6 +252,11 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
+    a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
+                   help="a fixed window's initial state: the model's carried state (default), a line fit of the "
+                        "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")
+    a.add_argument("--start-prior-sigmas", type=float, default=1.0,
+                   help="with --window-start joint: the carried state's background std in noise sigmas (default 1)")
     a.add_argument("--init", "--model", dest="init", default=None,
                    help="start from this model directory (its closure, and its mechanisms kept fixed)")
     a.add_argument("--inputs", choices=tuple(INPUT_SETS), default=None,

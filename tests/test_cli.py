@@ -146,3 +146,29 @@ def test_assimilate_memory_names_are_the_trainers_strategies():
     (memory,) = [a for a in sub._actions if a.dest == "memory"]
     assert set(memory.choices) == set(MEMORIES)
     assert memory.default in MEMORIES
+
+
+def test_assimilate_window_start_reaches_the_config(tmp_path, monkeypatch, capsys):
+    """--window-start and --start-prior-sigmas become the AssimilationConfig's; a bad value is a clear error."""
+    import trainers.assimilate
+    from trainers.assimilate import AssimilationConfig
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["assimilate"]
+    (start,) = [a for a in sub._actions if a.dest == "window_start"]
+    assert start.default == AssimilationConfig.window_start
+    for choice in start.choices:  # every choice the parser offers is one the config accepts
+        AssimilationConfig(window_start=choice)
+    seen = {}
+
+    def stand_in(runs, config, **kwargs):
+        seen["config"] = config
+        raise _Captured
+
+    monkeypatch.setattr(trainers.assimilate, "Assimilator", stand_in)
+    assert main(["simulate", "case1", "--out", str(tmp_path), "--dt", "600"]) == 0
+    args = ["assimilate", str(tmp_path / "case1.json"), "--out", str(tmp_path / "a")]
+    with pytest.raises(_Captured):
+        main([*args, "--window-start", "joint", "--start-prior-sigmas", "3"])
+    assert (seen["config"].window_start, seen["config"].start_prior_sigmas) == ("joint", 3.0)
+    assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
+    assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err
