@@ -238,15 +238,19 @@ def test_laplace_memory_config():
         AssimilationConfig.from_json(cfg.to_json().replace('"LaplaceMemory"', '"Remember"'))
 
 
-def test_laplace_memory_survives_an_interruption(tmp_path):
-    """The remembered windows are part of the checkpoint: an interrupted run resumes to the same weights."""
+@pytest.mark.parametrize("window_start", ["model", "joint"])
+def test_laplace_memory_survives_an_interruption(tmp_path, window_start):
+    """The remembered windows are part of the checkpoint: an interrupted run resumes to the same
+    weights; so does one whose windows start from a jointly estimated state (the checkpoint's next
+    initial state is the end of the corrected trajectory) with the memory of those states."""
     from tankode.closures import MLPClosure, MLPConfig
     from trainers.assimilate import Assimilator
     from trainers.memory import LaplaceMemory
 
     data = _data(_short_run(180.0), noise="high", seed=3)
-    cfg = AssimilationConfig(window_s=60.0, iters=2, memory=LaplaceMemory())
+    cfg = AssimilationConfig(window_s=60.0, iters=2, memory=LaplaceMemory(), window_start=window_start)
     whole = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run()
+    assert bool(whole.reports[-1].start_offset_sigmas) == (window_start == "joint")
 
     class Stop(Exception):
         pass
@@ -263,6 +267,7 @@ def test_laplace_memory_survives_an_interruption(tmp_path):
     assert len(resumed.memories) == 3
     for a, b in zip(whole.closure.parameters(), result.closure.parameters()):
         assert torch.equal(a, b)
+    assert result.reports[-1].start_offset_sigmas == whole.reports[-1].start_offset_sigmas
 
 
 def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_path):
