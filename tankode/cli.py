@@ -8,6 +8,9 @@ import sys
 from pathlib import Path
 
 from .closures import INPUT_SETS  # already loaded by the package's __init__
+from .solver import Adjoint, Backprop
+
+_GRADIENT = {"adjoint": Adjoint, "backprop": Backprop}  # tankode assimilate --gradient
 
 
 def _load_case_or_run(spec: str):
@@ -101,7 +104,7 @@ def cmd_assimilate(args) -> int:
     runs = [_initial(read_run(p), args.initial) for p in args.runs]
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas)
+                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[args.gradient]())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -252,6 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
+    a.add_argument("--gradient", choices=tuple(_GRADIENT), default="adjoint",
+                   help="adjoint (default: memory independent of the solver's steps) or backprop (through the "
+                        "solver's steps: memory grows with them, but stable where the adjoint's backward "
+                        "re-integration diverges, e.g. a stiff tank with a light wall)")
     a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
                    help="a fixed window's initial state: the model's carried state (default), a line fit of the "
                         "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")

@@ -148,8 +148,8 @@ def test_assimilate_memory_names_are_the_trainers_strategies():
     assert memory.default in MEMORIES
 
 
-def test_assimilate_window_start_reaches_the_config(tmp_path, monkeypatch, capsys):
-    """--window-start and --start-prior-sigmas become the AssimilationConfig's; a bad value is a clear error."""
+def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeypatch, capsys):
+    """--window-start, --start-prior-sigmas and --gradient become the AssimilationConfig's; a bad value is a clear error."""
     import trainers.assimilate
     from trainers.assimilate import AssimilationConfig
 
@@ -170,5 +170,9 @@ def test_assimilate_window_start_reaches_the_config(tmp_path, monkeypatch, capsy
     with pytest.raises(_Captured):
         main([*args, "--window-start", "joint", "--start-prior-sigmas", "3"])
     assert (seen["config"].window_start, seen["config"].start_prior_sigmas) == ("joint", 3.0)
+    assert type(seen["config"].gradient).__name__ == "Adjoint"
+    with pytest.raises(_Captured):
+        main([*args, "--gradient", "backprop"])
+    assert type(seen["config"].gradient).__name__ == "Backprop"
     assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err

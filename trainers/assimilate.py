@@ -195,6 +195,14 @@ class AssimilationResult:
 _OFFSET = "window_start_offset"
 START_OFFSET_BOUND_SIGMAS = 30.0
 
+# The forward pass integrated, the gradient's did not: torchdiffeq's adjoint re-integrates the
+# state backwards in time, which diverges where the tank has a fast decaying mode (MHTB's light
+# aluminium wall at 20 K: the state of P263981D turns NaN within 70 s of backward integration,
+# measured). Backprop differentiates the forward steps themselves and is stable there.
+ADJOINT_DIVERGED = (" (in the adjoint's backward pass, which re-integrates the state backwards in time and "
+                    "diverges where the tank is stiff, e.g. a light wall with a sub-second time constant: train "
+                    "with gradient=Backprop(), `tankode assimilate --gradient backprop`)")
+
 # Samples used for a data-informed window start: the last two minutes (12 samples at 10 s) average
 # the noise while a straight line still follows the tank's curvature.
 FIT_SPAN_S = 120.0
@@ -306,7 +314,10 @@ class Assimilator:
         prior = Prior(self, self.memories) if remembering and self.memories else None
         duration_s = t1 - t_data0
 
+        in_backward = [False]  # set once the forward pass of an evaluation has succeeded
+
         def loss(mask=None):
+            in_backward[0] = False
             s0 = s_start if estimate is None else estimate.state()
             states = self.predict(s0, t_start, t_eval, cfg.gradient)
             pred = self.model.observe(states[:, obs_index])
@@ -317,6 +328,7 @@ class Assimilator:
                 J = J + 0.5 * cfg.prior_weight * _mean_square_change(self.closure.parameters(), anchor)
             if prior is not None:
                 J = J + prior(duration_s)
+            in_backward[0] = True
             return J
 
         batch = None
@@ -342,6 +354,8 @@ class Assimilator:
                 except (SimulationError, FloatingPointError) as err:
                     # BoundedLBFGS restored the weights of the step's start: keep them, say why.
                     note = f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
+                    if in_backward[0] and isinstance(cfg.gradient, Adjoint):
+                        note += ADJOINT_DIVERGED
                     break
                 n_evals += res.n_evals
                 n_iters += res.n_iters
