@@ -9,7 +9,7 @@ Public surface (one entry point per job):
 * closures: ``ReferenceClosure`` (the paper's correlations), ``MLPClosure`` (the agent),
   ``ConstantClosure``.
 * properties: ``CoolPropFluid`` (reference), ``load_surrogate`` (differentiable surrogate).
-* solvers and gradients: ``AdaptiveRK``, ``LSODA``, ``Adjoint``, ``Backprop``, ``NoGradient``.
+* solvers and gradients: ``AdaptiveRK``, ``LSODA``, ``Adjoint``, ``Backprop``, ``Checkpointed``, ``NoGradient``.
 """
 
 from .cases import get_case
@@ -23,12 +23,12 @@ from .run import InitialState, Observations, Run, RunFormatError, TankSpec
 from .run_io import read_run, write_run
 from .schedule import Schedule
 from .simulate import Solution, simulate
-from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, NoGradient
+from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "AdaptiveRK", "Adjoint", "Backprop", "ConstantClosure", "CoolPropFluid", "Domain", "Fleet", "InitialState",
+    "AdaptiveRK", "Adjoint", "Backprop", "Checkpointed", "ConstantClosure", "CoolPropFluid", "Domain", "Fleet", "InitialState",
     "LSODA", "MLPClosure", "MLPConfig", "NoGradient", "Observations", "ReferenceClosure", "ReferenceCorrelation",
     "Run", "RunFormatError", "Schedule", "SimulationError", "Solution", "TankModel", "TankSpec", "geometry_from_spec",
     "get_case", "load_surrogate", "read_run", "simulate", "write_run",

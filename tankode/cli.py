@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 
 from .closures import INPUT_SETS  # already loaded by the package's __init__
-from .solver import Adjoint, Backprop
+from .solver import Adjoint, Backprop, Checkpointed
 
-_GRADIENT = {"adjoint": Adjoint, "backprop": Backprop}  # tankode assimilate --gradient
+_GRADIENT = {"adjoint": Adjoint, "backprop": Backprop, "checkpointed": Checkpointed}  # tankode assimilate --gradient
 
 
 def _load_case_or_run(spec: str):
@@ -216,7 +216,7 @@ def cmd_bench(args) -> int:
                      f"({w['function_evals']} evaluations) in {w['update_wall_s']:.1f} s: real-time factor "
                      f"{w['real_time_factor']:.1f} (target >= 10)")
         lines.append(f"autograd memory vs horizon {m['lengths_s']} s: adjoint {m['adjoint_bytes']} B, "
-                     f"backprop {m['backprop_bytes']} B")
+                     f"backprop {m['backprop_bytes']} B, checkpointed {m['checkpointed_bytes']} B")
     print("\n".join(lines))
     print(json.dumps(result))
     return 0
@@ -256,9 +256,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
     a.add_argument("--gradient", choices=tuple(_GRADIENT), default="adjoint",
-                   help="adjoint (default: memory independent of the solver's steps) or backprop (through the "
-                        "solver's steps: memory grows with them, but stable where the adjoint's backward "
-                        "re-integration diverges, e.g. a stiff tank with a light wall)")
+                   help="adjoint (default: memory independent of the solver's steps), backprop (through the "
+                        "solver's steps: memory grows with them) or checkpointed (backprop's gradient, one output "
+                        "interval's steps in memory at a time); the latter two are stable where the adjoint's "
+                        "backward re-integration diverges, e.g. a stiff tank with a light wall")
     a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
                    help="a fixed window's initial state: the model's carried state (default), a line fit of the "
                         "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")

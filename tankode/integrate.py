@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from torchdiffeq import odeint, odeint_adjoint
 
 from .forcing import Forcing
-from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, NoGradient
+from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
 from .state import STATE_NAMES
 
 
@@ -44,6 +44,8 @@ def _solve_segment(func: nn.Module, z0: Tensor, ts: Tensor, solver, gradient, mo
     if isinstance(solver, LSODA):
         return _lsoda(func, z0, ts, solver)
     kwargs = dict(rtol=solver.rtol, atol=solver.atol, method=solver.method)
+    if isinstance(gradient, Checkpointed):
+        return _checkpointed(func, z0, ts, kwargs)
     if isinstance(gradient, Adjoint):
         # The backward pass restarts at every output time (the cost's jumps). Starting each
         # restart at the output spacing instead of torchdiffeq's cold initial-step guess cuts
@@ -59,6 +61,25 @@ def _solve_segment(func: nn.Module, z0: Tensor, ts: Tensor, solver, gradient, mo
             adjoint_options=options,
         )
     return odeint(func, z0, ts, **kwargs)
+
+
+def _checkpointed(func: nn.Module, z0: Tensor, ts: Tensor, kwargs: dict) -> Tensor:
+    """``odeint`` over each output interval under ``torch.utils.checkpoint`` (``Checkpointed()``).
+
+    The recomputation in the backward pass repeats the forward steps exactly (same input, same
+    deterministic step controller). Each interval starts its step size afresh; the controller
+    finds it in two evaluations.
+    """
+    from torch.utils.checkpoint import checkpoint
+
+    def interval(z: Tensor, pair: Tensor) -> Tensor:
+        return odeint(func, z, pair, **kwargs)[-1]
+
+    out, z = [z0], z0
+    for i in range(len(ts) - 1):
+        z = checkpoint(interval, z, ts[i:i + 2], use_reentrant=False)
+        out.append(z)
+    return torch.stack(out)
 
 
 def _lsoda(func: nn.Module, z0: Tensor, ts: Tensor, solver: LSODA) -> Tensor:
@@ -174,7 +195,7 @@ def integrate(
         t_eval: output times (s), sorted, inside ``[t_start, t_end]``, shape ``(T,)``.
         scale: ``(env, 7)`` state scales (``state_scale``).
         solver: ``AdaptiveRK`` (any gradient) or ``LSODA`` (stiff-capable, ``NoGradient`` only).
-        gradient: ``NoGradient()``, ``Backprop()`` or ``Adjoint()``.
+        gradient: ``NoGradient()``, ``Backprop()``, ``Checkpointed()`` or ``Adjoint()``.
 
     Returns:
         states ``(env, T, 7)`` at ``t_eval`` and the ``IntegrationStats``.
@@ -197,8 +218,8 @@ def integrate(
         if a1 != b0:
             raise ValueError(f"segments must be contiguous: one ends at {a1} s, the next starts at {b0} s")
 
-    if not isinstance(gradient, (NoGradient, Backprop, Adjoint)):
-        raise TypeError(f"gradient must be NoGradient(), Backprop() or Adjoint(), got {gradient!r}")
+    if not isinstance(gradient, (NoGradient, Backprop, Checkpointed, Adjoint)):
+        raise TypeError(f"gradient must be NoGradient(), Backprop(), Checkpointed() or Adjoint(), got {gradient!r}")
     if isinstance(solver, LSODA) and not isinstance(gradient, NoGradient):
         raise ValueError("the LSODA solver is forward only; use AdaptiveRK() with Backprop() or Adjoint()")
     counter = _Counter()

@@ -435,19 +435,19 @@ def test_joint_window_start_recovers_a_drifted_state():
 
 
 @needs_mhtb
-def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_backprop_trains():
+def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_checkpointed_trains():
     """MHTB P263981D's light wall makes the tank stiff: the adjoint's backward re-integration of
     the state turns NaN (measured within 70 s) and the window's note says so and what to use;
-    Backprop() differentiates the forward steps and gives a finite gradient on the same window."""
-    from tankode.solver import Adjoint, Backprop
+    Checkpointed() differentiates the forward steps and gives a finite gradient on the same window."""
+    from tankode.solver import Adjoint, Checkpointed
     from trainers.assimilate import ADJOINT_DIVERGED, Assimilator
 
     run = read_run(MHTB / "P263981D.json").until(300.0)
     notes = {}
-    for gradient in (Adjoint(), Backprop()):
+    for gradient in (Adjoint(), Checkpointed()):
         a = Assimilator([run], AssimilationConfig(window_s=300.0, iters=1, gradient=gradient))
         report, _, _ = a.update(0, a.s0)
         notes[type(gradient).__name__] = report
-    adj, bp = notes["Adjoint"], notes["Backprop"]
+    adj, bp = notes["Adjoint"], notes["Checkpointed"]
     assert adj.note.endswith(ADJOINT_DIVERGED) and "non-finite state" in adj.note and adj.n_evals == 0
     assert bp.note == "" and bp.n_evals >= 1 and np.isfinite(bp.grad_norm) and bp.grad_norm > 0

@@ -48,7 +48,7 @@ from tankode.closures import MLPClosure, MLPConfig
 from tankode.fleet import Fleet
 from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
-from tankode.solver import AdaptiveRK, Adjoint, Backprop, NoGradient
+from tankode.solver import AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
 from tankode.state import N_STATE
 
 from .checkpoint import load_checkpoint, save_checkpoint
@@ -58,7 +58,7 @@ from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 from .window_start import StartEstimate
 
-_GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop}
+_GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop, "Checkpointed": Checkpointed}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
 
 
@@ -87,7 +87,9 @@ class AssimilationConfig:
         start_prior_sigmas: with ``window_start="joint"``, the background std of the carried
             state in units of each channel's noise std (1: the carried state is worth one
             sample per channel, so a window's ~60 samples decide the offset).
-        gradient: ``Adjoint()`` (default; memory independent of the step count) or ``Backprop()``.
+        gradient: ``Adjoint()`` (default; memory independent of the step count), ``Backprop()``
+            or ``Checkpointed()`` (Backprop's gradient, memory bounded by one output interval's
+            steps; for stiff tanks, where the adjoint's backward re-integration diverges).
         memory: what a fixed window's update keeps of the earlier windows: ``Forget()`` (the
             paper: nothing) or ``LaplaceMemory()`` (a Laplace prior on the coefficients the
             earlier windows determined; ``trainers/memory.py``). Fixed mode only: growing
@@ -110,7 +112,7 @@ class AssimilationConfig:
     prior_weight: float = 0.0
     window_start: str = "model"
     start_prior_sigmas: float = 1.0
-    gradient: Adjoint | Backprop = Adjoint()
+    gradient: Adjoint | Backprop | Checkpointed = Adjoint()
     memory: Forget | LaplaceMemory = Forget()
     rtol: float = 1e-6
     atol: float = 1e-8
@@ -133,8 +135,8 @@ class AssimilationConfig:
             raise ValueError(f"prior_weight must be finite and >= 0, got {self.prior_weight}")
         if not (self.weight_bound > 0):
             raise ValueError(f"weight_bound must be > 0, got {self.weight_bound}")
-        if not isinstance(self.gradient, (Adjoint, Backprop)):
-            raise ValueError(f"gradient must be Adjoint() or Backprop(), got {self.gradient!r}")
+        if not isinstance(self.gradient, (Adjoint, Backprop, Checkpointed)):
+            raise ValueError(f"gradient must be Adjoint(), Backprop() or Checkpointed(), got {self.gradient!r}")
         if not isinstance(self.memory, (Forget, LaplaceMemory)):
             raise ValueError(f"memory must be Forget() or LaplaceMemory(), got {self.memory!r}")
         if self.window_start == "joint" and self.mode != "fixed":
@@ -198,10 +200,10 @@ START_OFFSET_BOUND_SIGMAS = 30.0
 # The forward pass integrated, the gradient's did not: torchdiffeq's adjoint re-integrates the
 # state backwards in time, which diverges where the tank has a fast decaying mode (MHTB's light
 # aluminium wall at 20 K: the state of P263981D turns NaN within 70 s of backward integration,
-# measured). Backprop differentiates the forward steps themselves and is stable there.
+# measured). Checkpointed (and Backprop) differentiate the forward steps themselves and are stable there.
 ADJOINT_DIVERGED = (" (in the adjoint's backward pass, which re-integrates the state backwards in time and "
                     "diverges where the tank is stiff, e.g. a light wall with a sub-second time constant: train "
-                    "with gradient=Backprop(), `tankode assimilate --gradient backprop`)")
+                    "with gradient=Checkpointed(), `tankode assimilate --gradient checkpointed`)")
 
 # Samples used for a data-informed window start: the last two minutes (12 samples at 10 s) average
 # the noise while a straight line still follows the tank's curvature.

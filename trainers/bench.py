@@ -9,7 +9,7 @@ import torch
 from tankode.cases import get_case
 from tankode.schedule import Schedule
 from tankode.simulate import simulate
-from tankode.solver import Adjoint, Backprop, NoGradient
+from tankode.solver import Adjoint, Backprop, Checkpointed, NoGradient
 from tankode.synthetic import solution_to_runs
 
 from .assimilate import AssimilationConfig, Assimilator
@@ -60,16 +60,19 @@ def adjoint_memory_benchmark(lengths_s=(300.0, 600.0, 1200.0, 2400.0)) -> dict:
     Case 1's tank under constant sloshing (one input segment, so only the solver steps grow
     with the horizon) and six outputs at every length. With ``Adjoint`` only the outputs are
     kept (the backward pass re-integrates): the saved bytes do not grow with the number of
-    solver steps; with ``Backprop`` they grow linearly with it.
+    solver steps; with ``Backprop`` they grow linearly with it; with ``Checkpointed`` only the
+    outputs are kept until the backward pass recomputes one interval at a time.
     """
     run = get_case("case1")
     run = run.replace(inputs=Schedule.from_steps([(0, {"slosh_amplitude_m": 0.01, "slosh_frequency_Hz": 0.57})]))
-    out = {"lengths_s": list(lengths_s), "adjoint_bytes": [], "backprop_bytes": [], "rhs_evals_forward": []}
+    out = {"lengths_s": list(lengths_s), "adjoint_bytes": [], "backprop_bytes": [], "checkpointed_bytes": [],
+           "rhs_evals_forward": []}
     for L in lengths_s:
         t_eval = torch.linspace(0.0, L, 7, dtype=torch.float64)
         window = Window(0.0, L, t_eval[1:], torch.zeros(1, 6, 5, dtype=torch.float64),
                         torch.full((1, 6, 5), 1 / 6, dtype=torch.float64), torch.ones(1, 5, dtype=torch.float64))
-        for gradient, key in ((Adjoint(), "adjoint_bytes"), (Backprop(), "backprop_bytes")):
+        for gradient, key in ((Adjoint(), "adjoint_bytes"), (Backprop(), "backprop_bytes"),
+                              (Checkpointed(), "checkpointed_bytes")):
             a = Assimilator([run], AssimilationConfig(gradient=gradient))
             out[key].append(_saved_bytes(
                 lambda: cost(a.model.observe(a.predict(a.s0, 0.0, t_eval, gradient)[:, 1:]), window)))
