@@ -134,7 +134,7 @@ class _ScaledRHS(nn.Module):
         self.counter.last_s = s.detach()
         if self._segment_evals > self.max_evals:
             raise SimulationError(f"solver exceeded {self.max_evals} right-hand-side evaluations in one segment",
-                                  float(t), s, self.names)
+                                  self.counter.last_t, self.counter.last_s, self.names)
         # The adjoint's backward solve calls this outside integrate()'s own error handling, so a
         # failure here must already be a SimulationError: the trainers reject such a trial point
         # (a NaN state reaching the geometry once crashed a whole multi-environment study).
