@@ -68,16 +68,27 @@ def _checkpointed(func: nn.Module, z0: Tensor, ts: Tensor, kwargs: dict) -> Tens
 
     The recomputation in the backward pass repeats the forward steps exactly (same input, same
     deterministic step controller). Each interval starts its step size afresh; the controller
-    finds it in two evaluations.
+    finds it in two evaluations. The segment's evaluation budget is charged by the forward pass
+    only: a recomputation runs with the count the interval started from, so a segment that
+    needed more than half the budget does not fail in its backward pass.
     """
     from torch.utils.checkpoint import checkpoint
 
-    def interval(z: Tensor, pair: Tensor) -> Tensor:
-        return odeint(func, z, pair, **kwargs)[-1]
+    started_at: dict[int, int] = {}  # interval -> the segment's evaluations before its forward run
+
+    def interval(z: Tensor, pair: Tensor, i: int) -> Tensor:
+        if i not in started_at:
+            started_at[i] = func._segment_evals
+            return odeint(func, z, pair, **kwargs)[-1]
+        spent, func._segment_evals = func._segment_evals, started_at[i]
+        try:
+            return odeint(func, z, pair, **kwargs)[-1]
+        finally:
+            func._segment_evals = spent
 
     out, z = [z0], z0
     for i in range(len(ts) - 1):
-        z = checkpoint(interval, z, ts[i:i + 2], use_reentrant=False)
+        z = checkpoint(interval, z, ts[i:i + 2], i, use_reentrant=False)
         out.append(z)
     return torch.stack(out)
 

@@ -93,6 +93,24 @@ def test_checkpointed_gradient_is_backprops(data):
     assert sizes["Checkpointed"] < 0.2 * sizes["Backprop"], sizes
 
 
+def test_checkpointed_recomputation_is_not_charged_to_the_budget(data):
+    """The backward pass re-runs every interval: with a per-segment budget of 1.5 times what the
+    forward pass needs, the gradient still comes (charged twice, it would exceed the budget)."""
+    from tankode.integrate import integrate
+    from tankode.solver import AdaptiveRK
+
+    closure = ConstantClosure([2.0, 15.0, 40.0, 150.0], trainable=True)
+    a, _ = _setup(data, closure)
+    seg, t_eval = [(600.0, 720.0)], torch.linspace(600.0, 720.0, 7, dtype=torch.float64)
+    with torch.no_grad():
+        s_start = a.predict(a.s0, 0.0, torch.tensor([0.0, 600.0], dtype=torch.float64), NoGradient())[:, -1]
+    n = integrate(a.model, s_start, seg, a.fleet.forcing, t_eval, a.scale, AdaptiveRK(**TIGHT), Checkpointed())[1].n_rhs_evals
+    solver = AdaptiveRK(**TIGHT, max_rhs_evals=int(1.5 * n))
+    states, _ = integrate(a.model, s_start, seg, a.fleet.forcing, t_eval, a.scale, solver, Checkpointed())
+    (g,) = torch.autograd.grad(states[..., 1].sum(), closure.theta)
+    assert torch.isfinite(g).all() and float(g.abs().max()) > 0
+
+
 def test_constant_closure_gradient_adjoint_backprop_fd(data):
     closure = ConstantClosure([2.0, 15.0, 40.0, 150.0], trainable=True)
     a, J = _setup(data, closure)
