@@ -307,7 +307,7 @@ class Assimilator:
         named = [(n, p) for n, p in self.closure.named_parameters() if p.requires_grad]
         bounds = uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound)
         estimate = None
-        if cfg.window_start == "joint" and cfg.mode == "fixed" and k > 0:
+        if cfg.window_start == "joint" and k > 0:  # the config allows "joint" in fixed mode only
             estimate = StartEstimate(self.fleet, self.model, s_start, window, cfg.start_prior_sigmas)
             named.append((_OFFSET, estimate.delta))
             bounds[_OFFSET] = Box(-START_OFFSET_BOUND_SIGMAS, START_OFFSET_BOUND_SIGMAS)
@@ -316,10 +316,11 @@ class Assimilator:
         prior = Prior(self, self.memories) if remembering and self.memories else None
         duration_s = t1 - t_data0
 
-        in_backward = [False]  # set once the forward pass of an evaluation has succeeded
+        in_backward = False  # set once the forward pass of an evaluation has succeeded
 
         def loss(mask=None):
-            in_backward[0] = False
+            nonlocal in_backward
+            in_backward = False
             s0 = s_start if estimate is None else estimate.state()
             states = self.predict(s0, t_start, t_eval, cfg.gradient)
             pred = self.model.observe(states[:, obs_index])
@@ -330,7 +331,7 @@ class Assimilator:
                 J = J + 0.5 * cfg.prior_weight * _mean_square_change(self.closure.parameters(), anchor)
             if prior is not None:
                 J = J + prior(duration_s)
-            in_backward[0] = True
+            in_backward = True
             return J
 
         batch = None
@@ -356,7 +357,7 @@ class Assimilator:
                 except (SimulationError, FloatingPointError) as err:
                     # BoundedLBFGS restored the weights of the step's start: keep them, say why.
                     note = f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
-                    if in_backward[0] and isinstance(cfg.gradient, Adjoint):
+                    if in_backward and isinstance(cfg.gradient, Adjoint):
                         note += ADJOINT_DIVERGED
                     break
                 n_evals += res.n_evals
@@ -366,7 +367,7 @@ class Assimilator:
         if estimate is not None:
             with torch.no_grad():
                 s_start = estimate.state()
-            offsets = (estimate.delta * estimate.measured).detach().tolist()
+            offsets = estimate.offset.detach().tolist()
         with torch.no_grad():
             states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])

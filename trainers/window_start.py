@@ -89,16 +89,19 @@ class StartEstimate:
         self.prior_sigmas = float(prior_sigmas)
         self.delta = torch.zeros_like(window.inv_var, requires_grad=True)
 
+    @property
+    def offset(self) -> Tensor:
+        """``(env, 5)`` the offset in noise sigmas that acts: ``delta`` on the measured channels, 0 elsewhere."""
+        return self.delta * self.measured
+
     def state(self) -> Tensor:
         """The window's initial state ``(env, n_state)`` for the current ``delta``."""
-        d = self.delta * self.measured  # (env, 5)
-        tank = self.s_model[:, :N_STATE] + torch.einsum("esc,ec->es", self.M, d)
+        tank = self.s_model[:, :N_STATE] + torch.einsum("esc,ec->es", self.M, self.offset)
         return torch.cat([tank, self.s_model[:, N_STATE:]], dim=-1)
 
     def penalty(self) -> Tensor:
         """``J_b`` (dimensionless scalar), on the scale of the window cost J."""
-        d = self.delta * self.measured
-        return 0.5 * ((d / self.prior_sigmas) ** 2 / self.n).sum() / self.delta.shape[0]
+        return 0.5 * ((self.offset / self.prior_sigmas) ** 2 / self.n).sum() / self.delta.shape[0]
 
 
 __all__ = ["StartEstimate", "state_sensitivity"]
