@@ -9,7 +9,7 @@ Public surface (one entry point per job):
 * closures: ``ReferenceClosure`` (the paper's correlations), ``MLPClosure`` (the agent),
   ``ConstantClosure``.
 * properties: ``CoolPropFluid`` (reference), ``load_surrogate`` (differentiable surrogate).
-* solvers and gradients: ``AdaptiveRK``, ``LSODA``, ``Adjoint``, ``Backprop``, ``Checkpointed``, ``NoGradient``.
+* solvers and gradients: ``AdaptiveRK``, ``LSODA``, ``Rosenbrock``, ``Adjoint``, ``Backprop``, ``Checkpointed``, ``NoGradient``.
 """
 
 from .cases import get_case
@@ -23,13 +23,14 @@ from .run import InitialState, Observations, Run, RunFormatError, TankSpec
 from .run_io import read_run, write_run
 from .schedule import Schedule
 from .simulate import Solution, simulate
-from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
+from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AdaptiveRK", "Adjoint", "Backprop", "Checkpointed", "ConstantClosure", "CoolPropFluid", "Domain", "Fleet", "InitialState",
     "LSODA", "MLPClosure", "MLPConfig", "NoGradient", "Observations", "ReferenceClosure", "ReferenceCorrelation",
+    "Rosenbrock",
     "Run", "RunFormatError", "Schedule", "SimulationError", "Solution", "TankModel", "TankSpec", "geometry_from_spec",
     "get_case", "load_surrogate", "read_run", "simulate", "write_run",
 ]

@@ -104,7 +104,8 @@ def cmd_assimilate(args) -> int:
     runs = [_initial(read_run(p), args.initial) for p in args.runs]
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[args.gradient]())
+                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[args.gradient](),
+                                integrator=args.integrator)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -260,6 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "solver's steps: memory grows with them) or checkpointed (backprop's gradient, one output "
                         "interval's steps in memory at a time); the latter two are stable where the adjoint's "
                         "backward re-integration diverges, e.g. a stiff tank with a light wall")
+    a.add_argument("--integrator", choices=("dopri5", "rosenbrock"), default="dopri5",
+                   help="the ODE solver inside training: dopri5 (explicit, default) or rosenbrock (linearly "
+                        "implicit, for stiff tanks such as a light wall; with --gradient backprop or checkpointed)")
     a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
                    help="a fixed window's initial state: the model's carried state (default), a line fit of the "
                         "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")

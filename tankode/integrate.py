@@ -10,7 +10,8 @@ from torch import Tensor, nn
 from torchdiffeq import odeint, odeint_adjoint
 
 from .forcing import Forcing
-from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
+from .rosenbrock import StepFailure, rosenbrock_solve
+from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from .state import STATE_NAMES
 
 
@@ -43,10 +44,15 @@ def _solve_segment(func: nn.Module, z0: Tensor, ts: Tensor, solver, gradient, mo
     """Scaled states ``(len(ts), env, 7)`` of one segment with the chosen solver and gradient."""
     if isinstance(solver, LSODA):
         return _lsoda(func, z0, ts, solver)
-    kwargs = dict(rtol=solver.rtol, atol=solver.atol, method=solver.method)
+    if isinstance(solver, Rosenbrock):
+        def solve(f, z, t):
+            return rosenbrock_solve(f, z, t, solver.rtol, solver.atol)
+    else:
+        def solve(f, z, t):
+            return odeint(f, z, t, rtol=solver.rtol, atol=solver.atol, method=solver.method)
     if isinstance(gradient, Checkpointed):
-        return _checkpointed(func, z0, ts, kwargs)
-    if isinstance(gradient, Adjoint):
+        return _checkpointed(func, z0, ts, solve)
+    if isinstance(gradient, Adjoint):  # AdaptiveRK only: integrate() refuses Rosenbrock's
         # The backward pass restarts at every output time (the cost's jumps). Starting each
         # restart at the output spacing instead of torchdiffeq's cold initial-step guess cuts
         # the adjoint's evaluations ~4x (1560 -> 420 on a 60-sample window) at equal accuracy;
@@ -55,16 +61,16 @@ def _solve_segment(func: nn.Module, z0: Tensor, ts: Tensor, solver, gradient, mo
         gaps = ts[1:] - ts[:-1]
         options = {"norm": "seminorm", "first_step": float(gaps.median()) if len(gaps) else None}
         return odeint_adjoint(
-            func, z0, ts, **kwargs,
+            func, z0, ts, rtol=solver.rtol, atol=solver.atol, method=solver.method,
             adjoint_rtol=gradient.rtol or solver.rtol, adjoint_atol=gradient.atol or solver.atol,
             adjoint_params=tuple(p for p in model.parameters() if p.requires_grad),
             adjoint_options=options,
         )
-    return odeint(func, z0, ts, **kwargs)
+    return solve(func, z0, ts)
 
 
-def _checkpointed(func: nn.Module, z0: Tensor, ts: Tensor, kwargs: dict) -> Tensor:
-    """``odeint`` over each output interval under ``torch.utils.checkpoint`` (``Checkpointed()``).
+def _checkpointed(func: nn.Module, z0: Tensor, ts: Tensor, solve: Callable) -> Tensor:
+    """``solve(func, z, ts)`` over each output interval under ``torch.utils.checkpoint`` (``Checkpointed()``).
 
     The recomputation in the backward pass repeats the forward steps exactly (same input, same
     deterministic step controller). Each interval starts its step size afresh; the controller
@@ -79,10 +85,10 @@ def _checkpointed(func: nn.Module, z0: Tensor, ts: Tensor, kwargs: dict) -> Tens
     def interval(z: Tensor, pair: Tensor, i: int) -> Tensor:
         if i not in started_at:
             started_at[i] = func._segment_evals
-            return odeint(func, z, pair, **kwargs)[-1]
+            return solve(func, z, pair)[-1]
         spent, func._segment_evals = func._segment_evals, started_at[i]
         try:
-            return odeint(func, z, pair, **kwargs)[-1]
+            return solve(func, z, pair)[-1]
         finally:
             func._segment_evals = spent
 
@@ -188,7 +194,7 @@ def integrate(
     forcing: Callable[[float, Tensor], Forcing],
     t_eval: Tensor,
     scale: Tensor,
-    solver: AdaptiveRK | LSODA = AdaptiveRK(),
+    solver: AdaptiveRK | LSODA | Rosenbrock = AdaptiveRK(),
     gradient=NoGradient(),
 ) -> tuple[Tensor, IntegrationStats]:
     """Integrate ``model`` from ``s0`` across ``segments`` and return states at ``t_eval``.
@@ -205,7 +211,8 @@ def integrate(
             ``s_start`` ``(env, 7)`` (inflow enthalpies may depend on the tank pressure).
         t_eval: output times (s), sorted, inside ``[t_start, t_end]``, shape ``(T,)``.
         scale: ``(env, 7)`` state scales (``state_scale``).
-        solver: ``AdaptiveRK`` (any gradient) or ``LSODA`` (stiff-capable, ``NoGradient`` only).
+        solver: ``AdaptiveRK`` (any gradient), ``LSODA`` (stiff-capable, ``NoGradient`` only) or
+            ``Rosenbrock`` (stiff-capable, any gradient but ``Adjoint``).
         gradient: ``NoGradient()``, ``Backprop()``, ``Checkpointed()`` or ``Adjoint()``.
 
     Returns:
@@ -232,7 +239,9 @@ def integrate(
     if not isinstance(gradient, (NoGradient, Backprop, Checkpointed, Adjoint)):
         raise TypeError(f"gradient must be NoGradient(), Backprop(), Checkpointed() or Adjoint(), got {gradient!r}")
     if isinstance(solver, LSODA) and not isinstance(gradient, NoGradient):
-        raise ValueError("the LSODA solver is forward only; use AdaptiveRK() with Backprop() or Adjoint()")
+        raise ValueError("the LSODA solver is forward only; use AdaptiveRK() or Rosenbrock() with gradients")
+    if isinstance(solver, Rosenbrock) and isinstance(gradient, Adjoint):
+        raise ValueError("the Rosenbrock solver has no continuous adjoint; use Backprop() or Checkpointed()")
     counter = _Counter()
     names = getattr(model, "state_names", None)
     outputs: list[Tensor] = []
@@ -250,6 +259,9 @@ def integrate(
                 z = _solve_segment(func, z0, ts, solver, gradient, model)
             except SimulationError:
                 raise
+            except StepFailure as err:
+                raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}", err.t_s,
+                                      counter.last_s, names) from err
             except (AssertionError, RuntimeError, ValueError) as err:
                 raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}",
                                       counter.last_t, counter.last_s, names) from err

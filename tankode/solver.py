@@ -72,6 +72,30 @@ class LSODA:
 
 
 @dataclass(frozen=True)
+class Rosenbrock:
+    """ROS34PW2, a linearly implicit (Rosenbrock-W) solver for stiff tanks that autograd can differentiate.
+
+    For tanks whose light wall makes the ODE stiff (``LSODA``'s case) when gradients are needed:
+    L-stable, so steps follow accuracy instead of stability; four right-hand sides with autograd
+    per step plus a finite-difference Jacobian without it (``tankode/rosenbrock.py``). Works
+    with ``Backprop()`` and ``Checkpointed()``; ``Adjoint()`` is refused (its backward
+    re-integration is what diverges on stiff tanks). Third order: on a non-stiff tank at tight
+    tolerances ``AdaptiveRK`` (dopri5, fifth order) takes fewer steps.
+
+    Attributes:
+        rtol, atol: tolerances on the scaled state (as ``AdaptiveRK``).
+        max_rhs_evals: hard bound on right-hand-side evaluations per segment, Jacobians included.
+    """
+
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    max_rhs_evals: int = 200_000
+
+    def __post_init__(self):
+        _check_budget(self)
+
+
+@dataclass(frozen=True)
 class NoGradient:
     """Forward only (no autograd graph): simulation, prediction, benchmarks."""
 
@@ -112,4 +136,4 @@ class Adjoint:
     atol: float | None = None
 
 
-__all__ = ["AdaptiveRK", "LSODA", "NoGradient", "Backprop", "Checkpointed", "Adjoint"]
+__all__ = ["AdaptiveRK", "LSODA", "Rosenbrock", "NoGradient", "Backprop", "Checkpointed", "Adjoint"]

@@ -48,7 +48,7 @@ from tankode.closures import MLPClosure, MLPConfig
 from tankode.fleet import Fleet
 from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
-from tankode.solver import AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient
+from tankode.solver import AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from tankode.state import N_STATE
 
 from .checkpoint import load_checkpoint, save_checkpoint
@@ -58,6 +58,7 @@ from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 from .window_start import StartEstimate
 
+_INTEGRATORS = {"dopri5": AdaptiveRK, "rosenbrock": Rosenbrock}
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop, "Checkpointed": Checkpointed}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
 
@@ -94,6 +95,11 @@ class AssimilationConfig:
             paper: nothing) or ``LaplaceMemory()`` (a Laplace prior on the coefficients the
             earlier windows determined; ``trainers/memory.py``). Fixed mode only: growing
             windows refit all the data anyway.
+        integrator: the ODE solver inside training: "dopri5" (``AdaptiveRK``, explicit: fast on
+            tanks that are not stiff, the paper's cases) or "rosenbrock" (``Rosenbrock``, linearly
+            implicit: for stiff tanks, e.g. a light wall, where dopri5's steps are held to
+            fractions of a second; MHTB P263981D's first 2 h: 138 right-hand sides against
+            22,130, measured). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
@@ -114,6 +120,7 @@ class AssimilationConfig:
     start_prior_sigmas: float = 1.0
     gradient: Adjoint | Backprop | Checkpointed = Adjoint()
     memory: Forget | LaplaceMemory = Forget()
+    integrator: str = "dopri5"
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 20_000
@@ -139,6 +146,10 @@ class AssimilationConfig:
             raise ValueError(f"gradient must be Adjoint(), Backprop() or Checkpointed(), got {self.gradient!r}")
         if not isinstance(self.memory, (Forget, LaplaceMemory)):
             raise ValueError(f"memory must be Forget() or LaplaceMemory(), got {self.memory!r}")
+        if self.integrator not in _INTEGRATORS:
+            raise ValueError(f"integrator must be one of {tuple(_INTEGRATORS)}, got {self.integrator!r}")
+        if self.integrator == "rosenbrock" and isinstance(self.gradient, Adjoint):
+            raise ValueError("integrator='rosenbrock' has no continuous adjoint: use gradient=Backprop() or Checkpointed()")
         if self.window_start == "joint" and self.mode != "fixed":
             raise ValueError("window_start='joint' needs mode='fixed' (a growing window starts from the run's initial state)")
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
@@ -156,6 +167,7 @@ class AssimilationConfig:
         # Configurations written before the memory option existed trained with Forget().
         d.setdefault("memory", "Forget")
         d.setdefault("start_prior_sigmas", 1.0)  # unused before window_start="joint" existed
+        d.setdefault("integrator", "dopri5")  # the only one before Rosenbrock existed
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
                 raise ValueError(f"assimilation configuration: {key} {d[key]!r} is not one of {sorted(known)}")
@@ -200,10 +212,12 @@ START_OFFSET_BOUND_SIGMAS = 30.0
 # The forward pass integrated, the gradient's did not: torchdiffeq's adjoint re-integrates the
 # state backwards in time, which diverges where the tank has a fast decaying mode (MHTB's light
 # aluminium wall at 20 K: the state of P263981D turns NaN within 70 s of backward integration,
-# measured). Checkpointed (and Backprop) differentiate the forward steps themselves and are stable there.
+# measured). Backprop (and Checkpointed) differentiate the forward steps themselves and are stable
+# there; the Rosenbrock integrator takes steps that follow accuracy instead of the wall's stability.
 ADJOINT_DIVERGED = (" (in the adjoint's backward pass, which re-integrates the state backwards in time and "
                     "diverges where the tank is stiff, e.g. a light wall with a sub-second time constant: train "
-                    "with gradient=Checkpointed(), `tankode assimilate --gradient checkpointed`)")
+                    "with integrator='rosenbrock' and gradient=Backprop(), "
+                    "`tankode assimilate --integrator rosenbrock --gradient backprop`)")
 
 # Samples used for a data-informed window start: the last two minutes (12 samples at 10 s) average
 # the noise while a straight line still follows the tank's curvature.
@@ -244,7 +258,8 @@ class Assimilator:
                                self.fleet.wall_heat_capacity_J_per_K, mechanisms)
         self.s0 = self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))  # (env, n_state)
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3, self.model.extra_state_scales)
-        self.solver = AdaptiveRK(rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
+        self.solver = _INTEGRATORS[config.integrator](rtol=config.rtol, atol=config.atol,
+                                                      max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
         self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
 
