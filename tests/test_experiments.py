@@ -223,3 +223,25 @@ def test_mhtb_fixed_shares_with_the_dry_wall_node_quick(tmp_path):
     assert set(d["ebm_rmse"]) == {"p_v_Pa", "T_v_K", "T_l_K"}
     assert (tmp_path / "P263968K_from_P263981D.png").stat().st_size > 10_000
     assert "`dry_wall_node`'s R_sheet_K_per_W fitted" in (tmp_path / "summary.md").read_text()
+
+
+@needs_mhtb
+def test_mhtb_agent_quick(tmp_path):
+    """The agent trains on both real tests (cut to 1 h) with Rosenbrock + Backprop: the first
+    window's cost falls, every test is predicted, and the saved model predicts through the CLI."""
+    _run("mhtb_agent.py", tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    agents = [r for r in summary["rows"] if r["closure"] == "agent"]
+    assert {r["test"] for r in agents} == {"P263968K", "P263981D"}
+    for r in agents:
+        assert r["rmse"] is not None and r["rmse"]["p_v_Pa"] > 0, r
+        first = r["windows"][0]
+        assert first["note"] == "" and first["J_after"] < first["J_before"], first
+    model = tmp_path / "models" / "dry_wall_node_both"
+    assert json.loads((model / "model.json").read_text())["mechanisms"][0]["id"] == "dry_wall_node"
+    from mhtb_data import MHTB
+
+    proc = subprocess.run([sys.executable, "-m", "tankode.cli", "predict", str(model), str(MHTB / "P263981D.json"),
+                           "--initial", "measured", "--out", str(tmp_path / "pred")], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert any((tmp_path / "pred").iterdir())
