@@ -15,7 +15,7 @@ Jacobian. Two properties follow that make it fit autograd:
   solver's tolerance, with no second derivatives of the model and no backward re-integration.
 * Each step needs four right-hand sides with autograd, whatever the stiffness. The Jacobian is
   taken once per call and kept while steps are accepted; a rejected step takes a new one (a
-  stale matrix costs a W-method accuracy only through the error estimate, never its order).
+  W-method keeps its order with a stale matrix; only its stability can suffer).
 
 One step of size h from (t, z), W = I - gamma h J (Hairer and Wanner's form, J frozen):
 
@@ -45,7 +45,7 @@ _B_HAT = (0.3781090314581937, -0.09604229221242318, 0.5, 0.2179332607542295)
 _ORDER_HAT = 2  # the embedded solution's order: the error estimate is O(h^3)
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 5.0
 _EXPONENT = -1.0 / (_ORDER_HAT + 1)
-_MAX_REJECTS = 40  # consecutive rejections of one step before the solver gives up (h shrunk by >= 5^40)
+_MAX_REJECTS = 40  # consecutive rejections of one step before giving up (each shrinks h by 0.2 to 0.9)
 
 
 class StepFailure(RuntimeError):
