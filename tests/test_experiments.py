@@ -237,6 +237,9 @@ def test_mhtb_agent_quick(tmp_path):
         assert r["rmse"] is not None and r["rmse"]["p_v_Pa"] > 0, r
         first = r["windows"][0]
         assert first["note"] == "" and first["J_after"] < first["J_before"], first
+    solvers = {(r["test"], r["solver"]): r for r in summary["forward_solvers"]}
+    assert set(solvers) == {(t, s) for t in ("P263968K", "P263981D") for s in ("LSODA", "Rosenbrock")}
+    assert all(r["rhs_evals"] > 0 and r["span_s"] == 3600.0 for r in solvers.values())
     model = tmp_path / "models" / "dry_wall_node_both"
     assert json.loads((model / "model.json").read_text())["mechanisms"][0]["id"] == "dry_wall_node"
     from mhtb_data import MHTB
