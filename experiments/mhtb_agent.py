@@ -39,7 +39,7 @@ from tankode.mechanisms import make_mechanism  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 from tankode.solver import LSODA, AdaptiveRK, Backprop, Rosenbrock  # noqa: E402
-from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
+from trainers.assimilate import SATURATED_SHARE, AssimilationConfig, Assimilator  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
 # 30-minute windows: the tests are sampled every 5-30 min (a 10-minute window would often hold
@@ -125,7 +125,7 @@ def main(argv=None) -> dict:
                 wall_s = time.perf_counter() - start
             span_s = max(runs[n].observations.t_s[-1] - runs[n].observations.t_s[0] for n in names)
             windows = [{"J_before": r.cost_before, "J_after": r.cost_after, "evals": r.n_evals, "wall_s": r.wall_s,
-                        "note": r.note} for r in result.reports]
+                        "note": r.note, "saturated": r.saturated} for r in result.reports]
             save_model(out / "models" / f"{model_name}_{label}", result.closure, runs[names[0]].fluid,
                        {"trained_on": list(names), "config": config.to_json()}, mechanisms)
             print(f"{model_name}, agent trained on {label}: {len(windows)} windows in {wall_s:.0f} s "
@@ -154,8 +154,8 @@ def main(argv=None) -> dict:
 def _markdown(rows, solver_rows) -> str:
     lines = ["# The MLP agent on the MHTB tests (mhtb_agent.py)", "",
              "RMSE on the samples the EBM's published curves cover.", "",
-             "| model | closure | trained on | test | held out | p_v [Pa] | T_v [K] | T_l [K] | training [s] (real-time factor) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| model | closure | trained on | test | held out | p_v [Pa] | T_v [K] | T_l [K] | training [s] (real-time factor) | windows with h at a bound |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         trained = " + ".join(r["trained_on"]) or "-"
         held = {None: "", True: "yes", False: "no"}[r["held_out"]]
@@ -164,12 +164,18 @@ def _markdown(rows, solver_rows) -> str:
         else:
             cells = f"{r['rmse']['p_v_Pa']:.0f} | {r['rmse']['T_v_K']:.2f} | {r['rmse']['T_l_K']:.3f}"
         timing = f"{r['train_wall_s']:.0f} ({r['real_time_factor']:.0f})" if "train_wall_s" in r else ""
-        lines.append(f"| {r['model']} | {r['closure']} | {trained} | {r['test']} | {held} | {cells} | {timing} |")
+        bound = f"{_at_bound(r['windows'])} of {len(r['windows'])}" if "windows" in r else ""
+        lines.append(f"| {r['model']} | {r['closure']} | {trained} | {r['test']} | {held} | {cells} | {timing} | {bound} |")
     lines += ["", "Forward solvers, published correlations, baseline tank, at the training tolerances:", "",
               "| test | span [h] | solver | right-hand sides | wall time [s] |", "|---|---|---|---|---|"]
     lines += [f"| {r['test']} | {r['span_s'] / 3600:.1f} | {r['solver']} | {r['rhs_evals']} | {r['wall_s']:.2f} |"
               for r in solver_rows]
     return "\n".join(lines) + "\n"
+
+
+def _at_bound(windows) -> int:
+    """Windows after whose update some coefficient sat at an output bound over half the window or more."""
+    return sum(any(share >= SATURATED_SHARE for row in w["saturated"] for share in row) for w in windows)
 
 
 def _figure(path, run, ebm, solutions, test):

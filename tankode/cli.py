@@ -131,6 +131,9 @@ def cmd_assimilate(args) -> int:
         tag = f" ({r.note})" if r.note else ""
         print(f"window {r.index + 1}/{len(assim.windows)} [{r.t0_s:.0f}, {r.t1_s:.0f}] s: J {r.cost_before:.4g} -> "
               f"{r.cost_after:.4g}, {r.n_iters} iterations, {r.n_evals} evaluations, {r.wall_s:.1f} s{tag}", flush=True)
+        warning = r.saturation_warning([run.name for run in runs])
+        if warning:
+            print(f"  warning: {warning}", flush=True)
 
     result = assim.run(checkpoint=checkpoint, resume=args.resume, logdir=args.logdir, progress=not args.quiet,
                        on_window=report)

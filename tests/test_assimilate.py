@@ -272,6 +272,31 @@ def test_laplace_memory_survives_an_interruption(tmp_path, window_start):
     assert result.reports[-1].start_offset_sigmas == whole.reports[-1].start_offset_sigmas
 
 
+def test_an_agent_held_at_its_output_bound_is_reported():
+    """A coefficient the agent holds at its bound over the window (|tanh(o)| >= 0.99) is counted
+    in the report and named in its warning; an untrained agent (mid-range) names nothing."""
+    from tankode.closures import MLPClosure, MLPConfig
+    from trainers.assimilate import Assimilator
+
+    data = _data(_short_run(120.0))
+    reports = {}
+    for name, bias in (("mid-range", 0.0), ("h_wv at its ceiling", 5.0)):
+        agent = MLPClosure(MLPConfig(seed=0))
+        with torch.no_grad():
+            agent.net[-1].bias[2] = bias  # tanh(5) = 0.99991
+        agent.requires_grad_(False)  # nothing to train: the report describes this agent
+        agent.net[-1].bias.requires_grad_(True)
+        a = Assimilator([data], AssimilationConfig(window_s=120.0, iters=1), closure=agent)
+        reports[name], _, _ = a.update(0, a.s0)
+    assert reports["mid-range"].saturated == [[0.0, 0.0, 0.0, 0.0]]
+    assert reports["mid-range"].saturation_warning(["short"]) == ""
+    held = reports["h_wv at its ceiling"]
+    assert held.saturated[0][2] == 1.0 and held.saturated[0][:2] == [0.0, 0.0]
+    warning = held.saturation_warning(["short"])
+    assert warning.startswith("at the bound of the agent's output range: h_wv_W_m2K (100% of the window, short).")
+    assert "h_vi" not in warning
+
+
 def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_path):
     """Per window: J per environment and channel, the four h, gradient norm, evaluations, a figure
     each, and (joint window starts) the fitted start offsets."""
@@ -291,6 +316,7 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     expected = {"J/total", "optim/grad_norm", "optim/function_evals", "time/update_s"}
     expected |= {f"J/{r.name}/{c}" for r in runs for c in CHANNELS}
     expected |= {f"h/{r.name}/{h}" for r in runs for h in THETA_NAMES}
+    expected |= {f"saturated/{r.name}/{h}" for r in runs for h in THETA_NAMES}
     assert expected <= scalars, sorted(expected - scalars)
     assert images == {f"prediction/{r.name}" for r in runs}
     # One point per window, and the logged cost is the report's.

@@ -1,5 +1,6 @@
 """The ROS34PW2 Rosenbrock-W solver: accuracy on stiff analytic problems, gradients, budget, tanks."""
 
+import json
 import math
 
 import numpy as np
@@ -92,6 +93,9 @@ def test_no_adjoint():
         AssimilationConfig(integrator="euler")
     cfg = AssimilationConfig(integrator="rosenbrock", gradient=Backprop())
     assert AssimilationConfig.from_json(cfg.to_json()) == cfg
+    old = json.loads(AssimilationConfig().to_json())
+    del old["integrator"]  # a checkpoint written before the integrator existed trained with dopri5
+    assert AssimilationConfig.from_json(json.dumps(old)) == AssimilationConfig()
     run = case1().until(60.0)
     a = Assimilator([run], AssimilationConfig())
     with pytest.raises(ValueError, match="no continuous adjoint"):

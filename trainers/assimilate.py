@@ -44,7 +44,7 @@ import torch
 from torch import Tensor
 
 from tankode._threads import single_threaded
-from tankode.closures import MLPClosure, MLPConfig
+from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
 from tankode.fleet import Fleet
 from tankode.integrate import SimulationError, integrate, state_scale
 from tankode.model import TankModel
@@ -192,6 +192,17 @@ class WindowReport:
     wall_s: float
     note: str = ""
     start_offset_sigmas: list = field(default_factory=list)  # (env, 5) window_start="joint"'s fitted offset
+    saturated: list = field(default_factory=list)  # (env, 4) share of the window at an output bound (MLP agents)
+
+    def saturation_warning(self, env_names) -> str:
+        """A line naming the coefficients the agent held at an output bound over most of the window, or ""."""
+        held = [f"{h} ({share:.0%} of the window, {name})" for name, row in zip(env_names, self.saturated)
+                for h, share in zip(THETA_NAMES, row) if share >= SATURATED_SHARE]
+        if not held:
+            return ""
+        return ("at the bound of the agent's output range: " + ", ".join(held) + ". There the agent has no "
+                "gradient, and a closure pushed to the end of its range usually compensates for physics the "
+                "model lacks (tankode diagnose)")
 
 
 @dataclass
@@ -218,6 +229,11 @@ ADJOINT_DIVERGED = (" (in the adjoint's backward pass, which re-integrates the s
                     "diverges where the tank is stiff, e.g. a light wall with a sub-second time constant: train "
                     "with integrator='rosenbrock' and gradient=Backprop(), "
                     "`tankode assimilate --integrator rosenbrock --gradient backprop`)")
+
+# An output is at its bound where |tanh(o)| >= 0.99 (its slope is 2 % of the centre's); a warning
+# when that holds over half a window or more. On the MHTB tests every trained agent sat there.
+SATURATED_TANH = 0.99
+SATURATED_SHARE = 0.5
 
 # Samples used for a data-informed window start: the last two minutes (12 samples at 10 s) average
 # the noise while a straight line still follows the tank's curvature.
@@ -388,11 +404,14 @@ class Assimilator:
             pred = self.model.observe(states[:, obs_index])
             terms = cost_terms(pred, window)
             after = float(terms.sum() / window.n_env)
-            theta = theta_along(self.model, self.fleet, t_eval, states)
+            theta = theta_along(self.model, self.fleet, t_eval, states)  # (env, T, 4)
+            saturated = []
+            if isinstance(self.closure, MLPClosure):
+                saturated = (self.closure.output_position(theta).abs() >= SATURATED_TANH).double().mean(1).tolist()
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
-                              n_evals, n_iters, time.perf_counter() - start, note, offsets)
+                              n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated)
         return report, states[:, -1].detach().clone(), opt.state_dict()
 
     # -- the loop ------------------------------------------------------------------------------
@@ -458,7 +477,9 @@ class Assimilator:
     def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
         if ck.get("format") != "tankode-assimilation-checkpoint-1":
             raise ValueError(f"not a tankode assimilation checkpoint (format {ck.get('format')!r})")
-        if ck["config"] != self.config.to_json():
+        # Compared as configurations, not strings: a checkpoint written before a field existed
+        # (e.g. integrator) records its default implicitly.
+        if AssimilationConfig.from_json(ck["config"]) != self.config:
             raise ValueError("checkpoint was written with another configuration:\n"
                              f"  checkpoint: {ck['config']}\n  now:        {self.config.to_json()}")
         now = self._agent_json()

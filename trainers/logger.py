@@ -23,7 +23,8 @@ class TrainingLogger:
 
     Scalars (step = window index): ``J/total``, ``J/<env>/<channel>``, ``h/<env>/<coefficient>``
     (window means, W/(m^2 K)), ``start_offset_sigma/<env>/<channel>`` (``window_start="joint"``:
-    the fitted offset of the window's initial state, in noise sigmas), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
+    the fitted offset of the window's initial state, in noise sigmas), ``saturated/<env>/<coefficient>``
+    (MLP agents: the share of the window at an output bound), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
     ``time/update_s``. Figure ``prediction/<env>``: the current agent's prediction from the
     fleet's start to the window's end, with the data so far. A fixed-window agent has been fitted
     to the newest window only and may be unable to integrate the whole history; that is logged
@@ -46,6 +47,9 @@ class TrainingLogger:
                     w.add_scalar(f"J/{name}/{ch}", report.cost_terms[e][c], k)
             for j, th in enumerate(THETA_NAMES):
                 w.add_scalar(f"h/{name}/{th}", report.theta_mean[e][j], k)
+            if report.saturated:  # the share of the window each coefficient spent at an output bound
+                for j, th in enumerate(THETA_NAMES):
+                    w.add_scalar(f"saturated/{name}/{th}", report.saturated[e][j], k)
             if report.start_offset_sigmas:  # window_start="joint": how far the data moved the carried state
                 for c, ch in enumerate(CHANNELS):
                     w.add_scalar(f"start_offset_sigma/{name}/{ch}", report.start_offset_sigmas[e][c], k)

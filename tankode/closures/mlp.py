@@ -191,5 +191,10 @@ class MLPClosure(Closure):
     def forward(self, x: ClosureInputs) -> Tensor:
         return torch.exp(self.log_theta(mlp_features(x, self.config.features)))
 
+    def output_position(self, theta: Tensor) -> Tensor:
+        """``tanh(o)`` ``(..., 4)`` of coefficients ``theta`` (W/(m^2 K)) this agent gave: -1 and +1
+        are its output bounds ``h_ref e^-span`` and ``h_ref e^span``, where the slope vanishes."""
+        return (torch.log(theta) - self.log_h_ref) / self.config.span
+
 
 __all__ = ["MLPClosure", "MLPConfig", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]
