@@ -98,8 +98,8 @@ class AssimilationConfig:
         integrator: the ODE solver inside training: "dopri5" (``AdaptiveRK``, explicit: fast on
             tanks that are not stiff, the paper's cases) or "rosenbrock" (``Rosenbrock``, linearly
             implicit: for stiff tanks, e.g. a light wall, where dopri5's steps are held to
-            fractions of a second; MHTB P263981D's first 2 h: 138 right-hand sides against
-            22,130, measured). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
+            fractions of a second; MHTB P263981D's first 2 h: 146 right-hand sides against
+            22,274, measured by experiments/mhtb_agent.py). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
