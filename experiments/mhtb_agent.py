@@ -78,7 +78,7 @@ def _solver_rows(runs, quick) -> list[dict]:
     """Right-hand-side evaluations and wall time of each forward solver over each test's first 2 h."""
     rows = []
     for name, run in runs.items():
-        cut = run.until(min(SOLVER_SPAN_S, float(run.observations.t_s[-1])))
+        cut = run.until(min(SOLVER_SPAN_S, run.duration_s))
         for label, solver in SOLVERS.items():
             if quick and isinstance(solver, AdaptiveRK):
                 continue
