@@ -56,7 +56,7 @@ class LSODA:
     conductances of 1e3-1e4 W/K) have sub-second wall time constants in runs of many hours:
     the ODE is stiff and an explicit solver is stability-limited (MHTB P263981D: dopri5 needs
     57,000 right-hand-side evaluations, LSODA 250). ``simulate`` uses LSODA by default;
-    training needs gradients and uses ``AdaptiveRK``.
+    training needs gradients and uses ``AdaptiveRK`` or, on stiff tanks, ``Rosenbrock``.
 
     Attributes:
         rtol, atol: tolerances on the scaled state (as ``AdaptiveRK``).
@@ -78,7 +78,9 @@ class Rosenbrock:
     For tanks whose light wall makes the ODE stiff (``LSODA``'s case) when gradients are needed:
     L-stable, so steps follow accuracy instead of stability; four right-hand sides with autograd
     per step plus a finite-difference Jacobian without it (``tankode/rosenbrock.py``). Works
-    with ``Backprop()`` and ``Checkpointed()``; ``Adjoint()`` is refused (its backward
+    with ``Backprop()`` (its steps are few on a stiff tank, so memory stays small) and
+    ``Checkpointed()`` (which restarts the solver, Jacobian included, at every output time:
+    dearer with dense samples); ``Adjoint()`` is refused (its backward
     re-integration is what diverges on stiff tanks). Third order: on a non-stiff tank at tight
     tolerances ``AdaptiveRK`` (dopri5, fifth order) takes fewer steps.
 

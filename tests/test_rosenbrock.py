@@ -115,14 +115,14 @@ def test_case1_matches_the_reference_simulation():
 def test_closure_gradient_matches_dopri5_and_finite_differences():
     """The issue's gradient check, for the Rosenbrock solver: on a 3-minute window of case 1 with
     sloshing, Backprop and Checkpointed through ROS34PW2 agree with central finite differences and
-    with Backprop through dopri5 to 1e-4 relative (norm and direction)."""
+    with Backprop through dopri5 to 1e-4 relative (norm and direction; measured 3e-7 and 2.4e-6)."""
     run = case1()
     (data,) = solution_to_runs(run, simulate(run), noise="high", seed=0)
     closure = ConstantClosure([2.0, 15.0, 40.0, 150.0], trainable=True)
     t0, t1 = 600.0, 780.0
     grads = {}
     for integrator, gradients in (("dopri5", (Backprop(),)), ("rosenbrock", (Backprop(), Checkpointed()))):
-        a = Assimilator([data], AssimilationConfig(rtol=1e-10, atol=1e-12, integrator=integrator, gradient=Backprop()),
+        a = Assimilator([data], AssimilationConfig(rtol=1e-9, atol=1e-11, integrator=integrator, gradient=Backprop()),
                         closure=closure)
         with torch.no_grad():
             s_start = a.predict(a.s0, 0.0, torch.tensor([0.0, t0], dtype=torch.float64), NoGradient())[:, -1]
