@@ -102,9 +102,11 @@ def cmd_assimilate(args) -> int:
     from .saved import load_model, save_model
 
     runs = [_initial(read_run(p), args.initial) for p in args.runs]
+    # The default gradient follows the integrator: Rosenbrock has no continuous adjoint.
+    gradient = args.gradient or ("backprop" if args.integrator == "rosenbrock" else "adjoint")
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[args.gradient](),
+                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[gradient](),
                                 integrator=args.integrator)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -259,8 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
-    a.add_argument("--gradient", choices=tuple(_GRADIENT), default="adjoint",
-                   help="adjoint (default: memory independent of the solver's steps), backprop (through the "
+    a.add_argument("--gradient", choices=tuple(_GRADIENT), default=None,
+                   help="adjoint (default with dopri5: memory independent of the solver's steps), backprop "
+                        "(default with rosenbrock; through the "
                         "solver's steps: memory grows with them) or checkpointed (backprop's gradient, one output "
                         "interval's steps in memory at a time); the latter two are stable where the adjoint's "
                         "backward re-integration diverges, e.g. a stiff tank with a light wall")

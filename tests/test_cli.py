@@ -149,7 +149,8 @@ def test_assimilate_memory_names_are_the_trainers_strategies():
 
 
 def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeypatch, capsys):
-    """--window-start, --start-prior-sigmas and --gradient become the AssimilationConfig's; a bad value is a clear error."""
+    """--window-start, --start-prior-sigmas, --gradient and --integrator become the AssimilationConfig's; a bad
+    value is a clear error."""
     import trainers.assimilate
     from trainers.assimilate import AssimilationConfig
 
@@ -174,5 +175,10 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     with pytest.raises(_Captured):
         main([*args, "--gradient", "backprop"])
     assert type(seen["config"].gradient).__name__ == "Backprop"
+    with pytest.raises(_Captured):  # Rosenbrock has no adjoint: its default gradient is Backprop
+        main([*args, "--integrator", "rosenbrock"])
+    assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("rosenbrock", "Backprop")
+    assert main([*args, "--integrator", "rosenbrock", "--gradient", "adjoint"]) == 2
+    assert "has no continuous adjoint" in capsys.readouterr().err
     assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err
