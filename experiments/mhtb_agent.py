@@ -46,9 +46,9 @@ from trainers.assimilate import SATURATED_SHARE, AssimilationConfig, Assimilator
 # one pressure sample); 10 L-BFGS iterations per window.
 CONFIG = AssimilationConfig(window_s=1800.0, mode="fixed", iters=10, integrator="rosenbrock", gradient=Backprop(),
                             seed=0)
-# The round value that each test's separate fit brackets (8.8 and 9.6 K/W, mhtb_fixed_shares.py):
-# chosen on both tests, so the leave-one-test-out rows are blind to the held-out test's data only
-# through the agent, not through the shell.
+# The round value that each test's separate fit brackets (8.8 and 9.6 K/W, mhtb_fixed_shares.py).
+# It was chosen with both tests' fits: the held-out rows are blind to the held-out test through
+# the agent, not through the shell.
 R_SHEET_K_PER_W = 10.0
 MODELS = {"baseline": {}, "dry_wall_node": {"dry_wall_node": {"R_sheet_K_per_W": R_SHEET_K_PER_W}}}
 TRAININGS = {"both": RUNS, "P263981D": ("P263981D",), "P263968K": ("P263968K",)}
