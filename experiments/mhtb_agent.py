@@ -19,11 +19,9 @@ Usage: ``python experiments/mhtb_agent.py [--quick] [--out results/mhtb_agent]``
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
-from pathlib import Path
 
 import matplotlib
 
@@ -31,7 +29,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from mhtb import CHANNELS, RUNS, _ebm, _runs  # noqa: E402
-from tankode._threads import single_threaded  # noqa: E402
 from tankode.closures import MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
 from tankode.compare import channel_rmse, solution_observations  # noqa: E402
 from tankode.integrate import SimulationError  # noqa: E402
@@ -40,6 +37,7 @@ from tankode.saved import save_model  # noqa: E402
 from tankode.simulate import simulate  # noqa: E402
 from tankode.solver import LSODA, AdaptiveRK, Backprop, Rosenbrock  # noqa: E402
 from trainers.assimilate import SATURATED_SHARE, AssimilationConfig, Assimilator  # noqa: E402
+from trainers.studies import study_args  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
 # 30-minute windows: the tests are sampled every 5-30 min (a 10-minute window would often hold
@@ -52,7 +50,7 @@ CONFIG = AssimilationConfig(window_s=1800.0, mode="fixed", iters=10, integrator=
 R_SHEET_K_PER_W = 10.0
 MODELS = {"baseline": {}, "dry_wall_node": {"dry_wall_node": {"R_sheet_K_per_W": R_SHEET_K_PER_W}}}
 TRAININGS = {"both": RUNS, "P263981D": ("P263981D",), "P263968K": ("P263968K",)}
-QUICK_CONFIG = dataclasses.replace(CONFIG, window_s=1800.0, iters=2)
+QUICK_CONFIG = dataclasses.replace(CONFIG, iters=2)
 QUICK_UNTIL_S = 3600.0  # both tests cut to 1 h, the node model only, trained on both
 # The forward solvers compared on each test's first 2 h, at the training tolerances (dopri5 is
 # left out of --quick: it needs a minute per test there).
@@ -64,14 +62,14 @@ SOLVERS = {"LSODA": LSODA(rtol=CONFIG.rtol, atol=CONFIG.atol),
 
 
 def _score(run, closure, mechanisms, ebm):
-    """RMSE of the channels on the EBM's samples, or the solver's message if the prediction fails."""
+    """``(rmse, solution, error)``: the channels' RMSE on the EBM's samples and the prediction, or
+    ``(None, None, the solver's message)`` if the prediction fails."""
     try:
         sol = simulate(run, closure, output_dt_s=60.0, mechanisms=mechanisms)
     except SimulationError as err:
-        return None, str(err).splitlines()[0]
-    obs = solution_observations(sol)
-    rmse = channel_rmse(run, obs, CHANNELS, within=ebm)
-    return {c: rmse[c]["rmse"] for c in CHANNELS}, sol
+        return None, None, str(err).splitlines()[0]
+    rmse = channel_rmse(run, solution_observations(sol), CHANNELS, within=ebm)
+    return {c: rmse[c]["rmse"] for c in CHANNELS}, sol, ""
 
 
 def _solver_rows(runs, quick) -> list[dict]:
@@ -82,8 +80,7 @@ def _solver_rows(runs, quick) -> list[dict]:
         for label, solver in SOLVERS.items():
             if quick and isinstance(solver, AdaptiveRK):
                 continue
-            with single_threaded():
-                sol = simulate(cut, ReferenceClosure(), solver=solver)
+            sol = simulate(cut, ReferenceClosure(), solver=solver)  # one thread, as simulate always runs
             rows.append({"test": name, "solver": label, "span_s": float(sol.t_s[-1] - sol.t_s[0]),
                          "rhs_evals": sol.stats.n_rhs_evals, "wall_s": sol.wall_time_s})
             print(f"{name}, first {rows[-1]['span_s'] / 3600:.1f} h, {label}: {sol.stats.n_rhs_evals} right-hand sides, "
@@ -92,37 +89,32 @@ def _solver_rows(runs, quick) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="both tests cut to 1 h, 2 iterations, node model trained on both")
-    ap.add_argument("--out", default="results/mhtb_agent")
-    args = ap.parse_args(argv)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    config = QUICK_CONFIG if args.quick else CONFIG
+    quick, out = study_args(argv, __doc__.splitlines()[0], "both tests cut to 1 h, 2 iterations, node model trained on both",
+                            "mhtb_agent")
+    config = QUICK_CONFIG if quick else CONFIG
     runs = {r.name: r.with_measured_initial() for r in _runs(False)}
-    if args.quick:
+    if quick:
         runs = {n: r.until(QUICK_UNTIL_S) for n, r in runs.items()}
     ebm = _ebm(list(runs.values()))
-    models = {"dry_wall_node": MODELS["dry_wall_node"]} if args.quick else MODELS
-    trainings = {"both": TRAININGS["both"]} if args.quick else TRAININGS
+    models = {"dry_wall_node": MODELS["dry_wall_node"]} if quick else MODELS
+    trainings = {"both": TRAININGS["both"]} if quick else TRAININGS
 
-    solver_rows = _solver_rows(runs, args.quick)
+    solver_rows = _solver_rows(runs, quick)
     rows, solutions = [], {}
     for model_name, spec in models.items():
         mechanisms = tuple(make_mechanism(name, **values) for name, values in spec.items())
         for test in runs:
-            score, sol = _score(runs[test], ReferenceClosure(), mechanisms, ebm[test])
+            score, sol, error = _score(runs[test], ReferenceClosure(), mechanisms, ebm[test])
             rows.append({"model": model_name, "closure": "published correlations", "trained_on": [], "test": test,
-                         "held_out": None, "rmse": score, "error": sol if score is None else ""})
-            if score is not None:
+                         "held_out": None, "rmse": score, "error": error})
+            if sol is not None:
                 solutions[(model_name, "reference", test)] = sol
         for label, names in trainings.items():
-            with single_threaded():
-                agent = MLPClosure(MLPConfig(seed=config.seed))
-                a = Assimilator([runs[n] for n in names], config, closure=agent, mechanisms=mechanisms)
-                start = time.perf_counter()
-                result = a.run()
-                wall_s = time.perf_counter() - start
+            a = Assimilator([runs[n] for n in names], config, closure=MLPClosure(MLPConfig(seed=config.seed)),
+                            mechanisms=mechanisms)
+            start = time.perf_counter()
+            result = a.run()  # one thread, as Assimilator.run always runs
+            wall_s = time.perf_counter() - start
             span_s = max(runs[n].observations.t_s[-1] - runs[n].observations.t_s[0] for n in names)
             windows = [{"J_before": r.cost_before, "J_after": r.cost_after, "evals": r.n_evals, "wall_s": r.wall_s,
                         "note": r.note, "saturated": r.saturated} for r in result.reports]
@@ -131,17 +123,17 @@ def main(argv=None) -> dict:
             print(f"{model_name}, agent trained on {label}: {len(windows)} windows in {wall_s:.0f} s "
                   f"(real-time factor {float(span_s) / wall_s:.0f})", flush=True)
             for test in runs:
-                score, sol = _score(runs[test], result.closure, mechanisms, ebm[test])
+                score, sol, error = _score(runs[test], result.closure, mechanisms, ebm[test])
                 rows.append({"model": model_name, "closure": "agent", "trained_on": list(names), "test": test,
-                             "held_out": test not in names, "rmse": score, "error": sol if score is None else "",
+                             "held_out": test not in names, "rmse": score, "error": error,
                              "train_wall_s": wall_s, "real_time_factor": float(span_s) / wall_s, "windows": windows})
-                if score is not None:
+                if sol is not None:
                     solutions[(model_name, label, test)] = sol
     for test in runs:
         e = channel_rmse(runs[test], ebm[test], CHANNELS, within=ebm[test])
         rows.append({"model": "EBM (published)", "closure": "", "trained_on": [], "test": test, "held_out": None,
                      "rmse": {c: e[c]["rmse"] for c in CHANNELS}, "error": ""})
-    summary = {"config": json.loads(config.to_json()), "R_sheet_K_per_W": R_SHEET_K_PER_W, "quick": args.quick,
+    summary = {"config": json.loads(config.to_json()), "R_sheet_K_per_W": R_SHEET_K_PER_W, "quick": quick,
                "rows": rows, "forward_solvers": solver_rows}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "summary.md").write_text(_markdown(rows, solver_rows))

@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from torchdiffeq import odeint, odeint_adjoint
 
 from .forcing import Forcing
-from .rosenbrock import StepFailure, rosenbrock_solve
+from .rosenbrock import rosenbrock_solve
 from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from .state import STATE_NAMES
 
@@ -259,12 +259,9 @@ def integrate(
                 z = _solve_segment(func, z0, ts, solver, gradient, model)
             except SimulationError:
                 raise
-            except StepFailure as err:
-                raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}", err.t_s,
-                                      counter.last_s, names) from err
-            except (AssertionError, RuntimeError, ValueError) as err:
+            except (AssertionError, RuntimeError, ValueError) as err:  # StepFailure is a RuntimeError with its time
                 raise SimulationError(f"ODE solver failed in segment [{t0:.6g}, {t1:.6g}] s: {err}",
-                                      counter.last_t, counter.last_s, names) from err
+                                      getattr(err, "t_s", counter.last_t), counter.last_s, names) from err
             traj = (z * scale).permute(1, 0, 2)  # (env, len(ts), 7)
             if not torch.isfinite(traj).all():
                 raise SimulationError(f"non-finite state in segment [{t0:.6g}, {t1:.6g}] s", counter.last_t,

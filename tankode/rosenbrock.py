@@ -62,13 +62,23 @@ def _rms_norm(e: Tensor, z: Tensor, z_new: Tensor, rtol: float, atol: float) -> 
     return float(((e / tol) ** 2).mean(dim=-1).sqrt().max())
 
 
-def _jacobian(func, t: Tensor, z: Tensor, f0: Tensor) -> Tensor:
+def _factor(err: float) -> float:
+    """The next step over this one for a scaled error ``err`` (inf: a stage left the model's domain)."""
+    if not math.isfinite(err):
+        return 0.25
+    if err == 0:
+        return _MAX_FACTOR
+    return min(_MAX_FACTOR, max(_MIN_FACTOR, _SAFETY * err ** _EXPONENT))
+
+
+def _jacobian(func, t: float, z: Tensor, f0: Tensor) -> Tensor:
     """Forward-difference Jacobian ``(env, n, n)`` of ``func`` at ``z`` ``(env, n)``, without autograd.
 
     Column j perturbs component j of every environment at once (the environments do not
     interact), so the cost is n right-hand sides.
     """
     n = z.shape[-1]
+    t, z, f0 = torch.tensor(t, dtype=torch.float64), z.detach(), f0.detach()
     cols = []
     with torch.no_grad():
         for j in range(n):
@@ -137,20 +147,20 @@ def rosenbrock_solve(func, z0: Tensor, ts: Tensor, rtol: float, atol: float, fir
         first_step = 0.01 * d0 / d1
     h = max(first_step, 1e-9 * max(abs(t), 1.0))
     eye = torch.eye(z.shape[-1], dtype=z.dtype)
-    J, fresh = _jacobian(func, torch.tensor(t, dtype=torch.float64), z.detach(), f0.detach()), True
+    J, fresh = _jacobian(func, t, z, f0), True
     while nxt < len(t_list):
         rejects = 0
         while True:
-            step = min(h, t_end - t)
-            if t + step >= t_end - 1e-12 * max(abs(t_end), 1.0):
-                step = t_end - t
+            last = t + h >= t_end - 1e-12 * max(abs(t_end), 1.0)
+            step = t_end - t if last else h
             lu, piv = torch.linalg.lu_factor(eye - _GAMMA * step * J)  # (env, n, n), constant for autograd
             try:
                 z_new, err_vec = _step(func, t, z, f0, step, J, lu, piv)
                 err = _rms_norm(err_vec.detach(), z.detach(), z_new.detach(), rtol, atol)
-                f_new = func(torch.tensor(t + step, dtype=torch.float64), z_new) if err <= 1.0 else None
                 if not math.isfinite(err):
                     err = math.inf
+                elif err <= 1.0:
+                    f_new = func(torch.tensor(t + step, dtype=torch.float64), z_new)
             except SimulationError:
                 if spent():
                     raise
@@ -160,14 +170,14 @@ def rosenbrock_solve(func, z0: Tensor, ts: Tensor, rtol: float, atol: float, fir
             rejects += 1
             if rejects > _MAX_REJECTS:
                 raise StepFailure(f"ROS34PW2: {rejects} consecutive step rejections, step size {step:.3g} s", t)
-            h = step * (0.25 if not math.isfinite(err) else max(_MIN_FACTOR, _SAFETY * err ** _EXPONENT))
+            h = step * _factor(err)
             if not fresh:  # a stale Jacobian may be why: take a new one before shrinking further
-                J, fresh = _jacobian(func, torch.tensor(t, dtype=torch.float64), z.detach(), f0.detach()), True
-        t_new = t_end if step == t_end - t else t + step
+                J, fresh = _jacobian(func, t, z, f0), True
+        t_new = t_end if last else t + step
         while nxt < len(t_list) and t_list[nxt] <= t_new:
             out.append(_hermite(t_list[nxt], t, z, f0, t_new, z_new, f_new))
             nxt += 1
-        h = step * (_MAX_FACTOR if err == 0 else min(_MAX_FACTOR, max(_MIN_FACTOR, _SAFETY * err ** _EXPONENT)))
+        h = step * _factor(err)
         t, z, f0, fresh = t_new, z_new, f_new, False
     return torch.stack(out)
 

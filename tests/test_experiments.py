@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mhtb_data import needs_mhtb
+from mhtb_data import MHTB, needs_mhtb
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -242,8 +242,6 @@ def test_mhtb_agent_quick(tmp_path):
     assert all(r["rhs_evals"] > 0 and r["span_s"] == 3600.0 for r in solvers.values())
     model = tmp_path / "models" / "dry_wall_node_both"
     assert json.loads((model / "model.json").read_text())["mechanisms"][0]["id"] == "dry_wall_node"
-    from mhtb_data import MHTB
-
     proc = subprocess.run([sys.executable, "-m", "tankode.cli", "predict", str(model), str(MHTB / "P263981D.json"),
                            "--initial", "measured", "--out", str(tmp_path / "pred")], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]

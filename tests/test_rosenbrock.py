@@ -165,7 +165,7 @@ def test_stiff_real_tank_is_integrated_in_few_steps_and_a_window_trains():
     assert report.note == "" and math.isfinite(report.cost_after) and report.cost_after < 0.5 * report.cost_before
 
 
-def test_scaled_rhs_domain_failure_in_a_trial_stage_rejects_the_step():
+def test_a_stage_outside_the_domain_rejects_the_step():
     """A stage outside the model's domain (here: a right-hand side that refuses y1 > 1.5) shrinks
     the step instead of ending the solve; the solution is the same as without the refusal."""
     class Guarded(_Linear):
