@@ -107,7 +107,7 @@ def cmd_assimilate(args) -> int:
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
                                 start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[gradient](),
-                                integrator=args.integrator)
+                                integrator=args.integrator, train_mechanisms=tuple(args.train_mechanisms))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -124,6 +124,7 @@ def cmd_assimilate(args) -> int:
             print(f"note: the closure of {args.init} has no trainable weights; training a fresh MLP agent with "
                   f"its mechanisms {[m.id for m in mechanisms]}")
             closure = None
+    mechanisms = tuple(mechanisms) + tuple(_parse_mechanism(spec) for spec in args.mechanism)
     assim = Assimilator(runs, config, closure=closure, mechanisms=mechanisms)
     checkpoint = out / "checkpoint.pt"
     if checkpoint.exists() and not args.resume:
@@ -133,6 +134,8 @@ def cmd_assimilate(args) -> int:
         tag = f" ({r.note})" if r.note else ""
         print(f"window {r.index + 1}/{len(assim.windows)} [{r.t0_s:.0f}, {r.t1_s:.0f}] s: J {r.cost_before:.4g} -> "
               f"{r.cost_after:.4g}, {r.n_iters} iterations, {r.n_evals} evaluations, {r.wall_s:.1f} s{tag}", flush=True)
+        for mid, values in r.mechanisms.items():
+            print(f"  {mid}: " + ", ".join(f"{k} = {v:.4g}" for k, v in values.items()), flush=True)
         warning = r.saturation_warning([run.name for run in runs])
         if warning:
             print(f"  warning: {warning}", flush=True)
@@ -276,7 +279,13 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--start-prior-sigmas", type=float, default=1.0,
                    help="with --window-start joint: the carried state's background std in noise sigmas (default 1)")
     a.add_argument("--init", "--model", dest="init", default=None,
-                   help="start from this model directory (its closure, and its mechanisms kept fixed)")
+                   help="start from this model directory (its closure, and its mechanisms: fixed unless named by "
+                        "--train-mechanisms)")
+    a.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
+                   help="add a mechanism to the model trained, e.g. dry_wall_node:R_s_K_per_W=10 (repeatable)")
+    a.add_argument("--train-mechanisms", nargs="+", default=[], metavar="ID",
+                   help="train these mechanisms' parameters with the agent, inside their physical bounds, starting "
+                        "from their given values (trainers/mechanism_params.py)")
     a.add_argument("--inputs", choices=tuple(INPUT_SETS), default=None,
                    help="input features of a fresh agent (tankode/closures/mlp.py): default = the paper's eight, "
                         "extended = nine (not with --init, whose closure fixes them)")

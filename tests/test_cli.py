@@ -149,8 +149,8 @@ def test_assimilate_memory_names_are_the_trainers_strategies():
 
 
 def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeypatch, capsys):
-    """--window-start, --start-prior-sigmas, --gradient and --integrator become the AssimilationConfig's; a bad
-    value is a clear error."""
+    """--window-start, --start-prior-sigmas, --gradient, --integrator and --train-mechanisms become the
+    AssimilationConfig's (--mechanism the model's); a bad value is a clear error."""
     import trainers.assimilate
     from trainers.assimilate import AssimilationConfig
 
@@ -162,7 +162,7 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     seen = {}
 
     def stand_in(runs, config, **kwargs):
-        seen["config"] = config
+        seen["config"], seen["mechanisms"] = config, kwargs.get("mechanisms", ())
         raise _Captured
 
     monkeypatch.setattr(trainers.assimilate, "Assimilator", stand_in)
@@ -179,6 +179,10 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
         main([*args, "--integrator", "rosenbrock"])
     assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("rosenbrock", "Backprop")
     assert main([*args, "--integrator", "rosenbrock", "--gradient", "adjoint"]) == 2
+    with pytest.raises(_Captured):  # mechanisms added to the model and trained with the agent
+        main([*args, "--mechanism", "dry_wall_node:R_sheet_K_per_W=10", "--train-mechanisms", "dry_wall_node"])
+    assert seen["config"].train_mechanisms == ("dry_wall_node",)
+    assert [(m.id, m.values_dict()) for m in seen["mechanisms"]] == [("dry_wall_node", {"R_sheet_K_per_W": 10.0})]
     assert "has no continuous adjoint" in capsys.readouterr().err
     assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err

@@ -227,8 +227,9 @@ def test_mhtb_fixed_shares_with_the_dry_wall_node_quick(tmp_path):
 
 @needs_mhtb
 def test_mhtb_agent_quick(tmp_path):
-    """The agent trains on both real tests (cut to 1 h) with Rosenbrock + Backprop: the first
-    window's cost falls, every test is predicted, and the saved model predicts through the CLI."""
+    """The agent trains on both real tests (cut to 1 h) with Rosenbrock + Backprop, the dry wall
+    node's shell with it: the first window's cost falls, every test is predicted, and the saved
+    model (with the trained shell) predicts through the CLI."""
     _run("mhtb_agent.py", tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
     agents = [r for r in summary["rows"] if r["closure"] == "agent"]
@@ -240,8 +241,11 @@ def test_mhtb_agent_quick(tmp_path):
     solvers = {(r["test"], r["solver"]): r for r in summary["forward_solvers"]}
     assert set(solvers) == {(t, s) for t in ("P263968K", "P263981D") for s in ("LSODA", "Rosenbrock")}
     assert all(r["rhs_evals"] > 0 and r["span_s"] == 3600.0 for r in solvers.values())
-    model = tmp_path / "models" / "dry_wall_node_both"
-    assert json.loads((model / "model.json").read_text())["mechanisms"][0]["id"] == "dry_wall_node"
+    model = tmp_path / "models" / "dry_wall_node_trained_from_3_both"
+    (node,) = json.loads((model / "model.json").read_text())["mechanisms"]
+    # the shell trained with the agent: saved with the value the last window left, as the rows report it
+    assert node["id"] == "dry_wall_node" and node["params"]["R_sheet_K_per_W"] != 3.0, node
+    assert {r["R_sheet_K_per_W"] for r in agents} == {node["params"]["R_sheet_K_per_W"]}
     proc = subprocess.run([sys.executable, "-m", "tankode.cli", "predict", str(model), str(MHTB / "P263981D.json"),
                            "--initial", "measured", "--out", str(tmp_path / "pred")], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -55,6 +55,7 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
 from .evaluate import theta_along
 from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
+from .mechanism_params import TrainedMechanisms
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 from .window_start import StartEstimate
 
@@ -105,6 +106,11 @@ class AssimilationConfig:
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
             ODE too stiff to integrate within it is rejected (the update keeps the last good
             weights) instead of stalling the real-time loop.
+        train_mechanisms: ids of the model's mechanisms whose parameters each window's update
+            trains with the weights, inside their physical bounds (``trainers/mechanism_params.py``):
+            e.g. ``("dry_wall_node",)`` learns the shell's sheet resistance from the stream. Empty
+            (the default): mechanisms keep the values they were given. Not with ``LaplaceMemory()``,
+            whose prior covers the closure only.
     """
 
     window_s: float = 600.0
@@ -124,6 +130,7 @@ class AssimilationConfig:
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 20_000
+    train_mechanisms: tuple[str, ...] = ()
 
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -152,6 +159,11 @@ class AssimilationConfig:
             raise ValueError("integrator='rosenbrock' has no continuous adjoint: use gradient=Backprop() or Checkpointed()")
         if self.window_start == "joint" and self.mode != "fixed":
             raise ValueError("window_start='joint' needs mode='fixed' (a growing window starts from the run's initial state)")
+        if (not isinstance(self.train_mechanisms, tuple) or not all(isinstance(m, str) for m in self.train_mechanisms)
+                or len(set(self.train_mechanisms)) != len(self.train_mechanisms)):
+            raise ValueError(f"train_mechanisms must be a tuple of distinct mechanism ids, got {self.train_mechanisms!r}")
+        if self.train_mechanisms and isinstance(self.memory, LaplaceMemory):
+            raise ValueError("train_mechanisms needs memory=Forget(): LaplaceMemory's prior covers the closure only")
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
@@ -168,6 +180,7 @@ class AssimilationConfig:
         d.setdefault("memory", "Forget")
         d.setdefault("start_prior_sigmas", 1.0)  # unused before window_start="joint" existed
         d.setdefault("integrator", "dopri5")  # the only one before Rosenbrock existed
+        d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
                 raise ValueError(f"assimilation configuration: {key} {d[key]!r} is not one of {sorted(known)}")
@@ -193,6 +206,7 @@ class WindowReport:
     note: str = ""
     start_offset_sigmas: list = field(default_factory=list)  # (env, 5) window_start="joint"'s fitted offset
     saturated: list = field(default_factory=list)  # (env, 4) share of the window at an output bound (MLP agents)
+    mechanisms: dict = field(default_factory=dict)  # {id: {param: value}} after the update (train_mechanisms)
 
     def saturation_warning(self, env_names) -> str:
         """A line naming the coefficients the agent held at an output bound over most of the window, or ""."""
@@ -262,7 +276,9 @@ class Assimilator:
             agent trained on other environments to continue from it).
         surrogate: property surrogate (cached default for the runs' fluid if None).
         mechanisms: extra physical effects (``tankode.mechanisms``, e.g. from a model the
-            diagnosis extended), part of the model with their values fixed while the closure trains.
+            diagnosis extended), part of the model; their values stay fixed while the closure
+            trains, except those of ``config.train_mechanisms``, which are trained in place
+            (the objects passed here hold the trained values afterwards, as the closure does).
     """
 
     def __init__(self, runs, config: AssimilationConfig = AssimilationConfig(), closure=None, surrogate=None,
@@ -278,6 +294,7 @@ class Assimilator:
                                                       max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
         self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
+        self.trained = TrainedMechanisms(self.model.mechanisms, config.train_mechanisms)
 
     # -- forward pieces ------------------------------------------------------------------------
 
@@ -286,6 +303,7 @@ class Assimilator:
 
         ``model``: another right-hand side on the same fleet (e.g. a perturbed closure); the agent's by default.
         """
+        self.trained.apply()  # the optimiser moves the trained parameters in place
         states, _ = integrate(self.model if model is None else model, s_start, self.fleet.segments(t_start, float(t_eval[-1])), self.fleet.forcing,
                               t_eval, self.scale, self.solver, gradient)
         return states
@@ -337,6 +355,8 @@ class Assimilator:
 
         named = [(n, p) for n, p in self.closure.named_parameters() if p.requires_grad]
         bounds = uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound)
+        named += self.trained.named()
+        bounds.update(self.trained.bounds())
         estimate = None
         if cfg.window_start == "joint" and k > 0:  # the config allows "joint" in fixed mode only
             estimate = StartEstimate(self.fleet, self.model, s_start, window, cfg.start_prior_sigmas)
@@ -394,6 +414,7 @@ class Assimilator:
                 n_evals += res.n_evals
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
+        self.trained.settle()
         offsets = []
         if estimate is not None:
             with torch.no_grad():
@@ -411,7 +432,8 @@ class Assimilator:
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
-                              n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated)
+                              n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated,
+                              self.trained.values())
         return report, states[:, -1].detach().clone(), opt.state_dict()
 
     # -- the loop ------------------------------------------------------------------------------
@@ -458,6 +480,8 @@ class Assimilator:
 
     def _agent_json(self) -> str:
         """The agent's configuration as checkpoints record it (and resume compares it)."""
+        if not isinstance(self.closure, MLPClosure):  # e.g. a known closure while mechanisms train
+            return json.dumps({"type": type(self.closure).__name__})
         return json.dumps(asdict(self.closure.config))
 
     def _payload(self, k: int, s_next: Tensor, opt_state: dict, result: AssimilationResult) -> dict:
@@ -472,6 +496,7 @@ class Assimilator:
             "s_next": s_next,
             "reports": [json.dumps(asdict(r)) for r in result.reports],
             "memories": [m.to_payload() for m in self.memories],
+            "mechanisms": self.trained.values(),
         }
 
     def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
@@ -492,6 +517,7 @@ class Assimilator:
         self.closure.load_state_dict(ck["weights"])
         result.reports.extend(WindowReport(**json.loads(r)) for r in ck["reports"])
         self.memories = [WindowMemory.from_payload(m) for m in ck.get("memories", [])]
+        self.trained.load(ck.get("mechanisms", {}))
         return int(ck["next_window"]), ck["s_next"]
 
 

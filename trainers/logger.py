@@ -24,7 +24,8 @@ class TrainingLogger:
     Scalars (step = window index): ``J/total``, ``J/<env>/<channel>``, ``h/<env>/<coefficient>``
     (window means, W/(m^2 K)), ``start_offset_sigma/<env>/<channel>`` (``window_start="joint"``:
     the fitted offset of the window's initial state, in noise sigmas), ``saturated/<env>/<coefficient>``
-    (MLP agents: the share of the window at an output bound), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
+    (MLP agents: the share of the window at an output bound), ``mechanism/<id>/<parameter>``
+    (``train_mechanisms``: the values after the update, SI units), ``optim/grad_norm``, ``optim/function_evals``, ``optim/iterations``,
     ``time/update_s``. Figure ``prediction/<env>``: the current agent's prediction from the
     fleet's start to the window's end, with the data so far. A fixed-window agent has been fitted
     to the newest window only and may be unable to integrate the whole history; that is logged
@@ -53,6 +54,9 @@ class TrainingLogger:
             if report.start_offset_sigmas:  # window_start="joint": how far the data moved the carried state
                 for c, ch in enumerate(CHANNELS):
                     w.add_scalar(f"start_offset_sigma/{name}/{ch}", report.start_offset_sigmas[e][c], k)
+        for mid, values in report.mechanisms.items():  # train_mechanisms: the fitted physical parameters
+            for pname, v in values.items():
+                w.add_scalar(f"mechanism/{mid}/{pname}", v, k)
         w.add_scalar("optim/grad_norm", report.grad_norm, k)
         w.add_scalar("optim/function_evals", report.n_evals, k)
         w.add_scalar("optim/iterations", report.n_iters, k)

@@ -1,0 +1,108 @@
+"""Mechanism parameters trained with the agent: a physical effect's size learned from the stream.
+
+The diagnosis fits a mechanism's parameters with the four closure factors (``tankode.diagnosis``);
+the assimilation kept them fixed while the agent trained. With
+``AssimilationConfig(train_mechanisms=("dry_wall_node",))`` each window's L-BFGS update moves the
+named mechanisms' parameters together with the weights, inside their physical bounds
+(``Param.lower``, ``Param.upper``), so that, e.g., the shell's sheet resistance of the MHTB tank
+or an unknown wall heat capacity (``wall_heat_capacity_error``) is estimated from the training
+data rather than chosen beforehand.
+
+The trained variable is ``xi = value / Param.scale`` (one per parameter, shared by every
+environment: one tank's physics), so that one step of the optimiser moves a parameter in units
+of its typical size, as the weights move in units of 1. The mechanism reads ``xi * scale``; it
+is re-applied before every forward pass because the optimiser updates ``xi`` in place.
+
+Limits:
+
+* A mechanism that offsets the pressure reading (``pressure_sensor_bias``,
+  ``noncondensable_gas``) also changes the initial state built from that reading (with
+  CoolProp, outside autograd), so its gradient would be wrong: such mechanisms are refused.
+* Every parameter must start strictly inside its bounds, so a mechanism whose presence is
+  bounded below by 0 (a heat leak) starts present, however little: the bounded optimiser's
+  map has no slope on a bound. A parameter the cost has no slope in at its start does not move
+  either (a surface layer's wall share at a vanishing thickness).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from tankode.mechanisms.base import Mechanism
+
+from .lbfgs import Box
+
+PREFIX = "mechanism."
+
+
+class TrainedMechanisms:
+    """The trained parameters of some of a model's mechanisms.
+
+    Args:
+        mechanisms: the model's mechanisms (``TankModel.mechanisms``).
+        ids: the ids of those whose parameters are trained (each must be among ``mechanisms``).
+
+    Raises:
+        ValueError: an id not among the model's mechanisms (naming those it has), a mechanism
+            with per-environment values, or one that offsets the pressure reading.
+    """
+
+    def __init__(self, mechanisms, ids):
+        by_id = {m.id: m for m in mechanisms}
+        unknown = [i for i in ids if i not in by_id]
+        if unknown:
+            raise ValueError(f"train_mechanisms {unknown}: not among the model's mechanisms {sorted(by_id)} "
+                             "(add them to the model first, e.g. `tankode assimilate --mechanism ID:NAME=VALUE`)")
+        self.mechanisms = [by_id[i] for i in ids]
+        for m in self.mechanisms:
+            if type(m).pressure_offset_Pa is not Mechanism.pressure_offset_Pa:
+                raise ValueError(f"train_mechanisms: {m.id!r} offsets the pressure reading, which also sets the "
+                                 "initial state (built outside autograd): fit it with `tankode diagnose` instead")
+            if m.value.ndim != 1:
+                raise ValueError(f"train_mechanisms: {m.id!r} has per-environment values; one value per "
+                                 "parameter is trained")
+            for p, v in zip(m.params, m.value.tolist()):
+                if not p.lower < v < p.upper:
+                    raise ValueError(f"train_mechanisms: {m.id} {p.name} = {v:g} starts on its bound "
+                                     f"[{p.lower:g}, {p.upper:g}] {p.unit}; the bounded optimiser has no slope "
+                                     f"there: start it strictly inside (e.g. {m.id}:{p.name}={p.scale:g})")
+        self.scales = [torch.tensor([p.scale for p in m.params], dtype=torch.float64) for m in self.mechanisms]
+        self.xi = [(m.value.detach() / s).clone().requires_grad_(True) for m, s in zip(self.mechanisms, self.scales)]
+
+    def named(self) -> list[tuple[str, Tensor]]:
+        """``(name, xi)`` pairs for the optimiser, named ``mechanism.<id>``."""
+        return [(PREFIX + m.id, x) for m, x in zip(self.mechanisms, self.xi)]
+
+    def bounds(self) -> dict[str, Box]:
+        """Each mechanism's physical bounds, in units of its parameters' scales."""
+        return {PREFIX + m.id: Box(torch.tensor([p.lower for p in m.params], dtype=torch.float64) / s,
+                                   torch.tensor([p.upper for p in m.params], dtype=torch.float64) / s)
+                for m, s in zip(self.mechanisms, self.scales)}
+
+    def apply(self) -> None:
+        """Set every trained mechanism's parameters from ``xi`` (differentiably, for the next forward pass)."""
+        for m, x, s in zip(self.mechanisms, self.xi, self.scales):
+            m.value = x * s
+
+    def settle(self) -> None:
+        """Set the parameters from ``xi`` without a graph (after an update: for saving and simulating)."""
+        with torch.no_grad():
+            for m, x, s in zip(self.mechanisms, self.xi, self.scales):
+                m.set_values((x * s).clamp(torch.tensor([p.lower for p in m.params], dtype=torch.float64),
+                                           torch.tensor([p.upper for p in m.params], dtype=torch.float64)))
+
+    def values(self) -> dict[str, dict[str, float]]:
+        """The current values, ``{id: {param: value}}`` (SI units)."""
+        return {m.id: {p.name: float(x * sc) for p, x, sc in zip(m.params, xi.detach(), s)}
+                for m, xi, s in zip(self.mechanisms, self.xi, self.scales)}
+
+    def load(self, values: dict) -> None:
+        """Restore values saved by ``values()`` (a checkpoint)."""
+        with torch.no_grad():
+            for m, x, s in zip(self.mechanisms, self.xi, self.scales):
+                x.copy_(torch.tensor([values[m.id][p.name] for p in m.params], dtype=torch.float64) / s)
+        self.settle()
+
+
+__all__ = ["TrainedMechanisms"]
