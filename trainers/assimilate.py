@@ -496,7 +496,7 @@ class Assimilator:
             "s_next": s_next,
             "reports": [json.dumps(asdict(r)) for r in result.reports],
             "memories": [m.to_payload() for m in self.memories],
-            "mechanisms": self.trained.values(),
+            "mechanisms": self.trained.state_dict(),
         }
 
     def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
@@ -517,7 +517,7 @@ class Assimilator:
         self.closure.load_state_dict(ck["weights"])
         result.reports.extend(WindowReport(**json.loads(r)) for r in ck["reports"])
         self.memories = [WindowMemory.from_payload(m) for m in ck.get("memories", [])]
-        self.trained.load(ck.get("mechanisms", {}))
+        self.trained.load_state_dict(ck.get("mechanisms", {}))
         return int(ck["next_window"]), ck["s_next"]
 
 

@@ -104,11 +104,23 @@ class TrainedMechanisms:
         return {m.id: {p.name: float(x * sc) for p, x, sc in zip(m.params, xi.detach(), s)}
                 for m, xi, s in zip(self.mechanisms, self.xi, self.scales)}
 
-    def load(self, values: dict) -> None:
-        """Restore values saved by ``values()`` (a checkpoint)."""
+    def state_dict(self) -> dict[str, Tensor]:
+        """The trained variables ``{id: xi}`` as they are, for a checkpoint (``values()`` rounds through SI)."""
+        return {m.id: x.detach().clone() for m, x in zip(self.mechanisms, self.xi)}
+
+    def load_state_dict(self, state: dict[str, Tensor]) -> None:
+        """Restore ``state_dict()`` exactly, so that a resumed training continues bit for bit.
+
+        Raises:
+            ValueError: the checkpoint lacks a trained mechanism (it was written by another training).
+        """
+        missing = [m.id for m in self.mechanisms if m.id not in state]
+        if missing:
+            raise ValueError(f"checkpoint has no trained values for {missing}: it was written by a training "
+                             "that did not train them")
         with torch.no_grad():
-            for m, x, s in zip(self.mechanisms, self.xi, self.scales):
-                x.copy_(torch.tensor([values[m.id][p.name] for p in m.params], dtype=torch.float64) / s)
+            for m, x in zip(self.mechanisms, self.xi):
+                x.copy_(state[m.id])
         self.settle()
 
 
