@@ -199,8 +199,8 @@ def _figure(path, run, ebm, solutions, test):
         ax.plot(t / 3600, y / scale, "k.", ms=5, label="measured")
         te, ye = ebm.channel(ch)
         ax.plot(te / 3600, ye / scale, "k:", lw=1.5, label="EBM (published)")
-        # the published correlations on the fixed models, and every agent on this test held out
-        # (trained on the other test; in quick mode, the one training on both)
+        # the published correlations on the models with a fixed shell, and the agents trained on
+        # the other test (this one held out) or on both (not those trained on this test alone)
         mine = [(key, sol) for key, sol in solutions.items() if key[2] == test and
                 ((key[1] == "reference" and not MODELS[key[0]][1]) or key[1] not in ("reference", test))]
         for i, ((model, label, _), sol) in enumerate(mine):
