@@ -301,7 +301,7 @@ def test_an_agent_held_at_its_output_bound_is_reported():
 
 def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_path):
     """Per window: J per environment and channel, the four h, gradient norm, evaluations, a figure
-    each, and (joint window starts) the fitted start offsets."""
+    each, (joint window starts) the fitted start offsets and (train_mechanisms) the trained values."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
@@ -309,9 +309,14 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     from trainers.cost import CHANNELS
 
     runs = [_data(_short_run(120.0, name=n), seed=i) for i, n in enumerate(("tank_a", "tank_b"))]
-    # Joint window starts: two environments' offsets, logged from the second window on.
-    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1, window_start="joint"),
-                         closure=MLPClosure(MLPConfig(seed=0))).run(logdir=tmp_path)
+    # Joint window starts: two environments' offsets, logged from the second window on; and a
+    # mechanism trained with the agent, its value logged every window.
+    from tankode.mechanisms import make_mechanism
+
+    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1, window_start="joint",
+                                                  train_mechanisms=("heat_leak_vapor",)),
+                         closure=MLPClosure(MLPConfig(seed=0)),
+                         mechanisms=(make_mechanism("heat_leak_vapor", Q_W=10.0),)).run(logdir=tmp_path)
     events = EventAccumulator(str(tmp_path), size_guidance={"images": 0, "scalars": 0})
     events.Reload()
     scalars, images = set(events.Tags()["scalars"]), set(events.Tags()["images"])
@@ -328,6 +333,8 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     offsets = events.Scalars("start_offset_sigma/tank_b/H_l_m")
     assert [e.step for e in offsets] == [1] and result.reports[0].start_offset_sigmas == []
     assert offsets[0].value == pytest.approx(result.reports[1].start_offset_sigmas[1][4])
+    leak = [e.value for e in events.Scalars("mechanism/heat_leak_vapor/Q_W")]
+    assert leak == pytest.approx([r.mechanisms["heat_leak_vapor"]["Q_W"] for r in result.reports])
 
 
 
