@@ -11,7 +11,7 @@ from tankode.mechanisms import make_mechanism
 from tankode.run import InitialState, Run, TankSpec
 from tankode.schedule import Schedule
 from tankode.simulate import simulate
-from tankode.solver import Backprop
+from tankode.solver import Adjoint, Backprop, Checkpointed
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator
 from trainers.cost import Window, cost
@@ -48,8 +48,10 @@ def data():
     return d
 
 
-def test_gradient_in_a_mechanism_parameter_matches_central_differences(data):
-    """d J / d (value / scale) through the trained mechanisms: autograd (Backprop) against central differences."""
+@pytest.mark.parametrize("gradient", [Backprop(), Adjoint(), Checkpointed()], ids=lambda g: type(g).__name__)
+def test_gradient_in_a_mechanism_parameter_matches_central_differences(data, gradient):
+    """d J / d (value / scale) through the trained mechanisms, by every gradient strategy, against
+    central differences (the adjoint differentiates only the model's registered parameters)."""
     a = _assimilator(data)
     (_, xi_leak), (_, xi_wall) = a.trained.named()
     with torch.no_grad():
@@ -58,7 +60,7 @@ def test_gradient_in_a_mechanism_parameter_matches_central_differences(data):
     window = Window.from_runs(a.fleet.runs, a.fleet.t0_s - 1e-9, a.fleet.t_end_s)
     t_eval = window.t_s
 
-    def J(gradient=Backprop()):
+    def J():
         return cost(a.model.observe(a.predict(a.s0, a.fleet.t0_s, t_eval, gradient)), window)
 
     J().backward()

@@ -11,7 +11,10 @@ data rather than chosen beforehand.
 The trained variable is ``xi = value / Param.scale`` (one per parameter, shared by every
 environment: one tank's physics), so that one step of the optimiser moves a parameter in units
 of its typical size, as the weights move in units of 1. The mechanism reads ``xi * scale``; it
-is re-applied before every forward pass because the optimiser updates ``xi`` in place.
+is re-applied before every forward pass because the optimiser updates ``xi`` in place. ``xi``
+is registered as a parameter of its mechanism (``trained_xi``), so the model's parameters
+include it and every gradient strategy (``Adjoint()`` too) differentiates it; the mechanism
+keeps it after the training, with its values also in the usual buffer.
 
 Which window mode. A constant of the tank is learned from all the data so far, so train it
 with growing windows: in fixed windows it is refitted to each window alone, like the weights,
@@ -35,13 +38,14 @@ Limits:
 from __future__ import annotations
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from tankode.mechanisms.base import Mechanism
 
 from .lbfgs import Box
 
 PREFIX = "mechanism."
+XI_NAME = "trained_xi"  # the trained variable's name on its mechanism module
 
 
 class TrainedMechanisms:
@@ -76,7 +80,12 @@ class TrainedMechanisms:
                                      f"[{p.lower:g}, {p.upper:g}] {p.unit}; the bounded optimiser has no slope "
                                      f"there: start it strictly inside (e.g. {m.id}:{p.name}={p.scale:g})")
         self.scales = [torch.tensor([p.scale for p in m.params], dtype=torch.float64) for m in self.mechanisms]
-        self.xi = [(m.value.detach() / s).clone().requires_grad_(True) for m, s in zip(self.mechanisms, self.scales)]
+        self.xi = [nn.Parameter((m.value.detach() / s).clone()) for m, s in zip(self.mechanisms, self.scales)]
+        # Registered on the mechanism, so that the model's parameters include it: the adjoint
+        # integrates the sensitivities of exactly those (torchdiffeq's adjoint_params), and a
+        # tensor outside them would get no gradient from Adjoint().
+        for m, x in zip(self.mechanisms, self.xi):
+            m.register_parameter(XI_NAME, x)
 
     def named(self) -> list[tuple[str, Tensor]]:
         """``(name, xi)`` pairs for the optimiser, named ``mechanism.<id>``."""
