@@ -107,7 +107,7 @@ def _solver_rows(runs, quick) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    quick, out = study_args(argv, __doc__.splitlines()[0], "both tests cut to 1 h, 2 iterations, node model trained on both",
+    quick, out = study_args(argv, __doc__.splitlines()[0], "both tests cut to 1 h, 2 iterations, the node with its shell trained from 3 K/W, on both",
                             "mhtb_agent")
     config = QUICK_CONFIG if quick else CONFIG
     runs = {r.name: r.with_measured_initial() for r in _runs(False)}
@@ -139,7 +139,7 @@ def main(argv=None) -> dict:
             windows = [{"J_before": r.cost_before, "J_after": r.cost_after, "evals": r.n_evals, "wall_s": r.wall_s,
                         "note": r.note, "saturated": r.saturated, "mechanisms": r.mechanisms} for r in result.reports]
             save_model(out / "models" / f"{model_name}_{label}", result.closure, runs[names[0]].fluid,
-                       {"trained_on": list(names), "config": config.to_json()}, mechanisms)
+                       {"trained_on": list(names), "config": a.config.to_json()}, mechanisms)
             shell = _shell(mechanisms)
             print(f"{model_name}, agent trained on {label}: {len(windows)} windows in {wall_s:.0f} s "
                   f"(real-time factor {float(span_s) / wall_s:.0f}), R_s {shell}", flush=True)

@@ -282,7 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start from this model directory (its closure, and its mechanisms: fixed unless named by "
                         "--train-mechanisms)")
     a.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
-                   help="add a mechanism to the model trained, e.g. dry_wall_node:R_s_K_per_W=10 (repeatable)")
+                   help="add a mechanism to the model trained, e.g. dry_wall_node:R_sheet_K_per_W=10 (repeatable)")
     a.add_argument("--train-mechanisms", nargs="+", default=[], metavar="ID",
                    help="train these mechanisms' parameters with the agent, inside their physical bounds, starting "
                         "from their given values (trainers/mechanism_params.py)")

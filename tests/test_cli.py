@@ -179,10 +179,10 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
         main([*args, "--integrator", "rosenbrock"])
     assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("rosenbrock", "Backprop")
     assert main([*args, "--integrator", "rosenbrock", "--gradient", "adjoint"]) == 2
+    assert "has no continuous adjoint" in capsys.readouterr().err
     with pytest.raises(_Captured):  # mechanisms added to the model and trained with the agent
         main([*args, "--mechanism", "dry_wall_node:R_sheet_K_per_W=10", "--train-mechanisms", "dry_wall_node"])
     assert seen["config"].train_mechanisms == ("dry_wall_node",)
     assert [(m.id, m.values_dict()) for m in seen["mechanisms"]] == [("dry_wall_node", {"R_sheet_K_per_W": 10.0})]
-    assert "has no continuous adjoint" in capsys.readouterr().err
     assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err

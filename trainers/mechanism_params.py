@@ -80,6 +80,8 @@ class TrainedMechanisms:
                                      f"[{p.lower:g}, {p.upper:g}] {p.unit}; the bounded optimiser has no slope "
                                      f"there: start it strictly inside (e.g. {m.id}:{p.name}={p.scale:g})")
         self.scales = [torch.tensor([p.scale for p in m.params], dtype=torch.float64) for m in self.mechanisms]
+        self.lower = [torch.tensor([p.lower for p in m.params], dtype=torch.float64) for m in self.mechanisms]
+        self.upper = [torch.tensor([p.upper for p in m.params], dtype=torch.float64) for m in self.mechanisms]
         self.xi = [nn.Parameter((m.value.detach() / s).clone()) for m, s in zip(self.mechanisms, self.scales)]
         # Registered on the mechanism, so that the model's parameters include it: the adjoint
         # integrates the sensitivities of exactly those (torchdiffeq's adjoint_params), and a
@@ -93,9 +95,8 @@ class TrainedMechanisms:
 
     def bounds(self) -> dict[str, Box]:
         """Each mechanism's physical bounds, in units of its parameters' scales."""
-        return {PREFIX + m.id: Box(torch.tensor([p.lower for p in m.params], dtype=torch.float64) / s,
-                                   torch.tensor([p.upper for p in m.params], dtype=torch.float64) / s)
-                for m, s in zip(self.mechanisms, self.scales)}
+        return {PREFIX + m.id: Box(lo / s, hi / s)
+                for m, s, lo, hi in zip(self.mechanisms, self.scales, self.lower, self.upper)}
 
     def apply(self) -> None:
         """Set every trained mechanism's parameters from ``xi`` (differentiably, for the next forward pass)."""
@@ -105,14 +106,14 @@ class TrainedMechanisms:
     def settle(self) -> None:
         """Set the parameters from ``xi`` without a graph (after an update: for saving and simulating)."""
         with torch.no_grad():
-            for m, x, s in zip(self.mechanisms, self.xi, self.scales):
-                m.set_values((x * s).clamp(torch.tensor([p.lower for p in m.params], dtype=torch.float64),
-                                           torch.tensor([p.upper for p in m.params], dtype=torch.float64)))
+            for m, x, s, lo, hi in zip(self.mechanisms, self.xi, self.scales, self.lower, self.upper):
+                # xi stays in its box (the bounded optimiser's map); the clamp only absorbs the
+                # rounding of xi * scale at a bound, which set_values would otherwise refuse
+                m.set_values((x * s).clamp(lo, hi))
 
     def values(self) -> dict[str, dict[str, float]]:
         """The current values, ``{id: {param: value}}`` (SI units)."""
-        return {m.id: {p.name: float(x * sc) for p, x, sc in zip(m.params, xi.detach(), s)}
-                for m, xi, s in zip(self.mechanisms, self.xi, self.scales)}
+        return {m.id: m.values_dict() for m in self.mechanisms}
 
     def state_dict(self) -> dict[str, Tensor]:
         """The trained variables ``{id: xi}`` as they are, for a checkpoint (``values()`` rounds through SI)."""
