@@ -7,13 +7,17 @@ import time
 import torch
 
 
-def forward_benchmark(repeats: int = 3) -> dict:
-    """Case 1 (one tank, reference closure): real-time factor; 8 tanks batched vs one tank.
+def forward_benchmark(repeats: int = 3, fleet_copies: int = 50) -> dict:
+    """Case 1 (one tank, reference closure): real-time factor; 8 tanks batched vs one tank; a fleet.
+
+    The fleet is cases 1-5 (five operating schedules, one tank shape) repeated ``fleet_copies``
+    times, against the five cases batched once: what a whole fleet costs over a few tanks on
+    the CPU, the figure that says whether a fleet needs an accelerator.
 
     Each figure is the best of ``repeats`` runs after one warm-up (the first run pays for
     imports, the surrogate load and torch's lazy initialisation).
     """
-    from .cases import case1
+    from .cases import CASES, case1
     from .fleet import Fleet
     from .simulate import simulate
     from .solver import AdaptiveRK
@@ -30,6 +34,9 @@ def forward_benchmark(repeats: int = 3) -> dict:
     s1 = best(one)
     s8 = best(eight)
     rk = min((simulate(one, solver=AdaptiveRK()) for _ in range(repeats)), key=lambda s: s.wall_time_s)
+    five_runs = [make() for make in CASES.values()]
+    five = best(Fleet.from_runs(five_runs))
+    fleet = best(Fleet.from_runs(five_runs * fleet_copies))
     return {
         "case1_simulated_s": float(s1.t_s[-1] - s1.t_s[0]),
         "case1_wall_s": s1.wall_time_s,
@@ -39,6 +46,11 @@ def forward_benchmark(repeats: int = 3) -> dict:
         "batch8_over_one_tank": s8.wall_time_s / s1.wall_time_s,
         "case1_dopri5_real_time_factor": rk.real_time_factor,
         "case1_dopri5_rhs_evals": rk.stats.n_rhs_evals,
+        "cases5_wall_s": five.wall_time_s,
+        "fleet_tanks": 5 * fleet_copies,
+        "fleet_wall_s": fleet.wall_time_s,
+        "fleet_over_cases5": fleet.wall_time_s / five.wall_time_s,
+        "fleet_tank_hours_per_s": 5 * fleet_copies * float(fleet.t_s[-1] - fleet.t_s[0]) / 3600 / fleet.wall_time_s,
         "torch_threads": torch.get_num_threads(),
     }
 
@@ -72,6 +84,9 @@ def summary_lines(result: dict) -> list[str]:
                  f"{f['case1_wall_s']:.3f} s, real-time factor {f['case1_real_time_factor']:.0f} (target >= 1000)")
     lines.append(f"  dopri5 (the training solver): real-time factor {f['case1_dopri5_real_time_factor']:.0f}")
     lines.append(f"  8 tanks batched: {f['batch8_wall_s']:.3f} s = {f['batch8_over_one_tank']:.2f}x one tank (target <= 2x)")
+    lines.append(f"  fleet of {f['fleet_tanks']} tanks (cases 1-5 x {f['fleet_tanks'] // 5}): {f['fleet_wall_s']:.2f} s = "
+                 f"{f['fleet_over_cases5']:.2f}x the 5 cases batched ({f['cases5_wall_s']:.2f} s), "
+                 f"{f['fleet_tank_hours_per_s']:.0f} tank-hours per second")
     return lines
 
 
