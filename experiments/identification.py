@@ -59,6 +59,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
+    ap.add_argument("--mode", choices=("fixed", "growing"), default=None,
+                    help="AssimilationConfig.mode (default: the config block's, fixed as in the issue)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -68,6 +70,8 @@ def main(argv=None) -> dict:
                                  memory=MEMORIES[args.memory]())
     if args.iters is not None:
         config = dataclasses.replace(config, iters=args.iters)
+    if args.mode is not None:
+        config = dataclasses.replace(config, mode=args.mode)
 
     run = get_case(CASE)
     if args.quick:
