@@ -26,10 +26,10 @@ import torch  # noqa: E402
 
 from tankode.cases import get_case  # noqa: E402
 from tankode.closures import INPUT_SETS, MLPClosure, MLPConfig  # noqa: E402
+from tankode.errors import SimulationError  # noqa: E402
 from tankode.noise import noise_std  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
-from tankode.integrate import SimulationError  # noqa: E402
-from tankode.simulate import simulate  # noqa: E402
+from tankode.simulation import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
 from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
 from trainers.memory import MEMORIES  # noqa: E402
@@ -60,7 +60,7 @@ def main(argv=None) -> dict:
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
     ap.add_argument("--mode", choices=("fixed", "growing"), default=None,
-                    help="AssimilationConfig.mode (default: the config block's, fixed as in the issue)")
+                    help="AssimilationConfig.mode (default: the config block's, fixed)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""NASA MHTB self-pressurization tests (issue 6): tankode on real data, against the published EBM.
+"""NASA MHTB self-pressurization tests: tankode on real data, against the published EBM.
 
 Two digitised liquid-hydrogen tests (P263968K, 25 % fill, 18.5 h; P263981D, 90 % fill, 5.4 h;
 ``../shared/data/mhtb/``, read in place) and, beside each, the energy-balance model's (EBM)
@@ -19,8 +19,7 @@ published prediction. The script
    each alone, from the best point of a grid scored on the training tests only, saves each as a
    model (``OUT/layer_models/<tests>``) and applies it with ``tankode predict`` to the test it
    was not calibrated on. These fits stop at 8 iterations, before converging: run to
-   convergence from four starts (``mhtb_multistart.py``) the fit on P263981D predicts P263968K
-   at 2.6 kPa, not step 5's 310 Pa.
+   convergence the fit on P263981D predicts P263968K far worse (``experiments/README.md``).
 
 Usage: ``python experiments/mhtb.py [--quick] [--out results/mhtb]``
 """
@@ -44,22 +43,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tankode.compare import channel_rmse, read_peer_prediction, solution_observations  # noqa: E402
+from common import MHTB_CHANNELS, MHTB_DATA, MHTB_FLUID, ebm_predictions, mhtb_runs  # noqa: E402
+from tankode.compare import channel_rmse, solution_observations  # noqa: E402
 from tankode.diagnosis import (  # noqa: E402
     DiagnosisConfig, LeaveOneRunOut, Problem, diagnose, fit, heldout_rms_sigma, write_report)
 from tankode.diagnosis.forward import closure_params, mechanism_params  # noqa: E402
+from tankode.errors import SimulationError  # noqa: E402
 from tankode.fleet import Fleet  # noqa: E402
-from tankode.integrate import SimulationError  # noqa: E402
 from tankode.mechanisms import MECHANISMS  # noqa: E402
 from tankode.run_io import read_run  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
-from tankode.simulate import simulate  # noqa: E402
+from tankode.simulation import simulate  # noqa: E402
 
 # ---- configuration ---------------------------------------------------------------------------
-DATA = Path("../shared/data/mhtb")
-RUNS = ("P263968K", "P263981D")
-FLUID = "ParaHydrogen"
-CHANNELS = ("p_v_Pa", "T_v_K", "T_l_K")
+DATA, FLUID, CHANNELS = MHTB_DATA, MHTB_FLUID, MHTB_CHANNELS  # the tests (experiments/common.py)
 # Samples are ~10-20 min apart and the residuals correlate over hours: one-hour bootstrap blocks.
 # The bound-pinned baseline linearises badly: dry_wall_heating scores 4th there but acts strongly
 # once the ullage decouples from the wall, so four candidates are refitted, with as many
@@ -74,7 +71,7 @@ QUICK = DiagnosisConfig(candidates=("heat_leak_vapor", "pressure_sensor_bias", "
 # with the four factors free its sheet resistance trades off with the h_wv factor (correlation
 # -1.00) and is unresolved. Holding h_wv at the published correlation resolves it. The rest are the
 # command line's defaults (15 / 8 iterations, the twelve default candidates, 5 refitted: the score
-# test ranks the node first since it stopped projecting out the factors held on their bounds).
+# test ranks the node first, as it does not project out the factors held on their bounds).
 MEASURED = DiagnosisConfig(split=LeaveOneRunOut(), block_s=3600.0, hold=("h_wv",))
 QUICK_MEASURED = dataclasses.replace(QUICK, candidates=("pressure_sensor_bias", "dry_wall_node"), refit_top=None,
                                      hold=("h_wv",))
@@ -90,16 +87,6 @@ LAYER_GRID = {"inv_thickness_1_per_m": (50.0, 100.0, 200.0, 400.0),  # 2 cm to 2
 QUICK_UNTIL_S = 7200.0  # both tests cut to 2 h (the 25 % fill test has 12 samples by then)
 OUTPUT_DT_S = 60.0
 # -----------------------------------------------------------------------------------------------
-
-
-def _runs(quick):
-    runs = [read_run(DATA / f"{n}.json") for n in RUNS]
-    return [r.until(QUICK_UNTIL_S) for r in runs] if quick else runs
-
-
-def _ebm(runs):
-    """The EBM's published prediction of each of ``runs``, by name."""
-    return {r.name: read_peer_prediction(DATA / f"{r.name}.ebm.csv", FLUID) for r in runs}
 
 
 def _p_rmse(run, observations, within=None):
@@ -194,8 +181,8 @@ def main(argv=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     config = QUICK if args.quick else FULL
     start = time.perf_counter()
-    runs = _runs(args.quick)
-    ebm = _ebm(runs)
+    runs = mhtb_runs(QUICK_UNTIL_S if args.quick else None)
+    ebm = ebm_predictions(runs)
 
     # 1. baseline (reference closure, estimated wall heat capacity)
     baseline = {r.name: _predict(r) for r in runs}

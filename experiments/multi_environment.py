@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from tankode.cases import get_case  # noqa: E402
 from tankode.closures import INPUT_SETS, MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
-from tankode.simulate import simulate  # noqa: E402
+from tankode.simulation import simulate  # noqa: E402
 from tankode.synthetic import solution_to_runs  # noqa: E402
 from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
 from trainers.evaluate import validation_cost  # noqa: E402

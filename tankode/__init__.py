@@ -12,18 +12,40 @@ Public surface (one entry point per job):
 * solvers and gradients: ``AdaptiveRK``, ``LSODA``, ``Rosenbrock``, ``Adjoint``, ``Backprop``, ``Checkpointed``, ``NoGradient``.
 """
 
-from .cases import get_case
-from .closures import ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation
-from .fleet import Fleet
-from .geometry import geometry_from_spec
-from .integrate import SimulationError
-from .model import TankModel
-from .properties import CoolPropFluid, Domain, load_surrogate
-from .run import InitialState, Observations, Run, RunFormatError, TankSpec
-from .run_io import read_run, write_run
-from .schedule import Schedule
-from .simulate import Solution, simulate
-from .solver import LSODA, AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
+import importlib
+
+# Public name -> the module that defines it. Loaded on first use (PEP 562), so that
+# ``tankode --help`` and argument errors answer without importing torch and CoolProp.
+_EXPORTS = {
+    "get_case": ".cases",
+    "ConstantClosure": ".closures", "MLPClosure": ".closures", "MLPConfig": ".closures",
+    "ReferenceClosure": ".closures", "ReferenceCorrelation": ".closures",
+    "Fleet": ".fleet",
+    "geometry_from_spec": ".geometry",
+    "SimulationError": ".errors",
+    "TankModel": ".model",
+    "CoolPropFluid": ".properties", "Domain": ".properties", "load_surrogate": ".properties",
+    "InitialState": ".run", "Observations": ".run", "Run": ".run", "RunFormatError": ".run", "TankSpec": ".run",
+    "read_run": ".run_io", "write_run": ".run_io",
+    "Schedule": ".schedule",
+    "Solution": ".simulation", "simulate": ".simulation",
+    "LSODA": ".solver", "AdaptiveRK": ".solver", "Adjoint": ".solver", "Backprop": ".solver",
+    "Checkpointed": ".solver", "NoGradient": ".solver", "Rosenbrock": ".solver",
+}
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tankode' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
+
 
 __version__ = "0.1.0"
 

@@ -1,25 +1,5 @@
-"""Temporarily single-threaded torch for small dense solves."""
+"""Alias of :mod:`tankode.threads` for the library's internal imports."""
 
-from __future__ import annotations
+from .threads import single_threaded
 
-from contextlib import contextmanager
-
-import torch
-
-
-@contextmanager
-def single_threaded():
-    """Run the body with one torch (OpenMP/MKL) thread; the previous count is restored after.
-
-    The fits' matrices are small (~2500 x 100) and the ODE's tensors smaller still ((env, 7)
-    states): one thread is as fast or faster, while on an oversubscribed machine multi-threaded
-    BLAS/OpenMP stalled the surrogate fit ~20x (measured 18 s vs 1 s) and a window update ~5x
-    (303 s vs 56 s; README, speed). Usable as a decorator (``@single_threaded()``).
-    Process-global while it lasts, like any ``torch.set_num_threads``.
-    """
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
+__all__ = ["single_threaded"]

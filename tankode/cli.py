@@ -5,12 +5,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 
-from .closures import INPUT_SETS  # already loaded by the package's __init__
-from .solver import Adjoint, Backprop, Checkpointed
+from .files import check_output_dir
 
-_GRADIENT = {"adjoint": Adjoint, "backprop": Backprop, "checkpointed": Checkpointed}  # tankode assimilate --gradient
+# Choices spelled out so that argument parsing imports neither torch nor CoolProp (a test
+# checks each against the library's own table).
+_GRADIENTS = ("adjoint", "backprop", "checkpointed")  # tankode assimilate --gradient
+_INPUT_SETS = ("default", "extended")  # tankode.closures.INPUT_SETS
+_EXIT_ERROR = 2  # every error: a bad input, a failed simulation, a refused output
+
+
+def _gradient(name: str):
+    from .solver import Adjoint, Backprop, Checkpointed
+
+    return {"adjoint": Adjoint, "backprop": Backprop, "checkpointed": Checkpointed}[name]()
 
 
 def _load_case_or_run(spec: str):
@@ -21,9 +31,18 @@ def _load_case_or_run(spec: str):
         return get_case(spec), False
     path = Path(spec)
     if not path.exists():
-        raise SystemExit(f"tankode: {spec!r} is neither a case ({', '.join(CASES)}) nor an existing run JSON file")
+        raise FileNotFoundError(f"{spec!r} is neither a case ({', '.join(CASES)}) nor an existing run JSON file")
     run = read_run(path)
     return run, len(run.observations) > 0
+
+
+def _input_files(run) -> list[Path]:
+    """The files a run was read from (its JSON and CSV), for the output guard; none for a built-in case."""
+    if run.path is None:
+        return []
+    from .run_io import timeseries_path
+
+    return [Path(run.path), timeseries_path(Path(run.path))]
 
 
 def _parse_mechanism(spec: str):
@@ -52,6 +71,8 @@ def _whole_number(text: str, option: str) -> int:
 
 def _initial(run, how: str):
     """The run started as asked (``metadata`` or ``measured``), saying where its metadata and first samples disagree."""
+    for note in run.notes():
+        print(f"note: {note}")
     for note in run.initial_disagreements():
         print(f"note: {note}; starting from the " + ("samples at the start (--initial measured)" if how == "measured"
                                                    else "metadata (--initial measured starts from the samples)"))
@@ -61,28 +82,29 @@ def _initial(run, how: str):
 def cmd_simulate(args) -> int:
     from .plotting import plot_run
     from .run_io import write_run
-    from .simulate import simulate
+    from .simulation import simulate
     from .synthetic import solution_to_runs
 
     run, measured = _load_case_or_run(args.run)
-    run = _initial(run, args.initial)
+    inputs = _input_files(run)
     closure, mechanisms = None, ()
     if args.model is not None:
         from .saved import load_model
 
+        inputs.append(Path(args.model))
+    out = check_output_dir(args.out, inputs)
+    run = _initial(run, args.initial)
+    if args.model is not None:
         closure, mechanisms, _ = load_model(args.model)
     hidden = tuple(_parse_mechanism(spec) for spec in args.mechanism)
     model_name = f"the model in {args.model}" if args.model else "the reference closure"
     if hidden:
         model_name += " and the mechanism(s) " + ", ".join(f"{m.id} {m.values_dict()}" for m in hidden)
     sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=tuple(mechanisms) + hidden)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    channels = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
-    (sim,) = solution_to_runs(run, sol, noise=args.noise, seed=args.seed, channels=channels, model_name=model_name)
+    (sim,) = solution_to_runs(run, sol, noise=args.noise, seed=args.seed, model_name=model_name)
     json_path, csv_path = write_run(sim, out)
     png = out / f"{sim.name}.png"
-    clean = solution_to_runs(run, sol, noise="clean", channels=channels)[0]
+    clean = solution_to_runs(run, sol, noise="clean")[0]
     plot_run(png, clean if args.noise != "clean" else sim, measured=run if measured else (sim if args.noise != "clean" else None),
              title=f"{run.name}: tankode simulation" + (" vs measured data" if measured else f" ({args.noise} noise)"))
     for note in sol.notes:
@@ -101,20 +123,27 @@ def cmd_assimilate(args) -> int:
     from .run_io import read_run
     from .saved import load_model, save_model
 
-    runs = [_initial(read_run(p), args.initial) for p in args.runs]
+    read = [read_run(p) for p in args.runs]
+    out = check_output_dir(args.out, [f for r in read for f in _input_files(r)]
+                           + ([Path(args.init)] if args.init is not None else []))
+    checkpoint = out / "checkpoint.pt"
+    if args.resume and not checkpoint.exists():
+        raise FileNotFoundError(f"--resume: there is no checkpoint to resume from ({checkpoint} does not exist)")
+    if checkpoint.exists() and not args.resume:
+        raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
+    runs = [_initial(r, args.initial) for r in read]
     # The default gradient follows the integrator: Rosenbrock has no continuous adjoint.
     gradient = args.gradient or ("backprop" if args.integrator == "rosenbrock" else "adjoint")
     config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
                                 seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas, gradient=_GRADIENT[gradient](),
+                                start_prior_sigmas=args.start_prior_sigmas, gradient=_gradient(gradient),
                                 integrator=args.integrator, train_mechanisms=tuple(args.train_mechanisms))
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
     if args.inputs is not None and args.init is not None:
         raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
     if args.inputs is not None:
-        from .closures import MLPClosure, MLPConfig
+        from .closures import INPUT_SETS, MLPClosure, MLPConfig
 
         closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
     if args.init is not None:
@@ -126,9 +155,6 @@ def cmd_assimilate(args) -> int:
             closure = None
     mechanisms = tuple(mechanisms) + tuple(_parse_mechanism(spec) for spec in args.mechanism)
     assim = Assimilator(runs, config, closure=closure, mechanisms=mechanisms)
-    checkpoint = out / "checkpoint.pt"
-    if checkpoint.exists() and not args.resume:
-        raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
 
     def report(r):
         tag = f" ({r.note})" if r.note else ""
@@ -153,16 +179,16 @@ def cmd_predict(args) -> int:
     from .plotting import plot_run
     from .run_io import read_run, write_run
     from .saved import load_model
-    from .simulate import simulate
+    from .simulation import simulate
     from .synthetic import solution_to_runs
 
+    run = read_run(args.run)
+    out = check_output_dir(args.out, _input_files(run) + [Path(args.model)])
     closure, mechanisms, meta = load_model(args.model)
-    run = _initial(read_run(args.run), args.initial)
+    run = _initial(run, args.initial)
     if run.fluid != meta["fluid"]:
         raise ValueError(f"model {args.model} is for {meta['fluid']}, run {args.run} is {run.fluid}")
     sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     (pred,) = solution_to_runs(run, sol, noise="clean", model_name=f"the model in {args.model}")
     json_path, csv_path = write_run(pred, out)
     png = out / f"{pred.name}.png"
@@ -179,7 +205,10 @@ def cmd_diagnose(args) -> int:
     from .run_io import read_run
     from .saved import load_model
 
-    runs = [_initial(read_run(p), args.initial) for p in args.runs]
+    read = [read_run(p) for p in args.runs]
+    check_output_dir(args.out, [f for r in read for f in _input_files(r)]
+                     + ([Path(args.model)] if args.model is not None else []))
+    runs = [_initial(r, args.initial) for r in read]
     closure, mechanisms = None, ()
     if args.model is not None:
         closure, mechanisms, meta = load_model(args.model)
@@ -212,7 +241,7 @@ def cmd_diagnose(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import run_benchmarks, summary_lines
+    from .bench import run_benchmarks, summary_lines, verdict
 
     result = run_benchmarks(n_points=args.points, repeats=args.repeats)
     lines = summary_lines(result)
@@ -223,11 +252,27 @@ def cmd_bench(args) -> int:
         w, m = tr["window_update"], tr["adjoint_memory"]
         lines.append(f"window update: {w['n_tanks']} tanks, {w['window_s']:.0f} s window, {w['iters']} iterations "
                      f"({w['function_evals']} evaluations) in {w['update_wall_s']:.1f} s: real-time factor "
-                     f"{w['real_time_factor']:.1f} (target >= 10)")
+                     f"{w['real_time_factor']:.1f} ({verdict(w['real_time_factor'], 10)})")
         lines.append(f"autograd memory vs horizon {m['lengths_s']} s: adjoint {m['adjoint_bytes']} B, "
                      f"backprop {m['backprop_bytes']} B, checkpointed {m['checkpointed_bytes']} B")
     print("\n".join(lines))
     print(json.dumps(result))
+    return 0
+
+
+def cmd_sensitivity(args) -> int:
+    """``tankode sensitivity CASE_OR_RUN --out DIR``: writes DIR/sobol.json, DIR/sensitivity.png."""
+    from .sensitivity import one_at_a_time, plot_sensitivity, slosh_intervals, sobol_indices
+
+    run, _ = _load_case_or_run(args.run)
+    out = check_output_dir(args.out, _input_files(run))
+    res = sobol_indices(run, spread=args.spread, n_base=args.n_base, seed=args.seed, output_dt_s=args.dt)
+    oat = one_at_a_time(run, spread=args.spread, output_dt_s=args.dt)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sobol.json").write_text(json.dumps(res.to_json()))
+    png = plot_sensitivity(res, oat, out / "sensitivity.png", slosh=slosh_intervals(run, res.t_s))
+    print(f"{res.n_samples} samples of {run.name} simulated in {res.wall_s:.1f} s")
+    print(f"wrote {out / 'sobol.json'}, {png}")
     return 0
 
 
@@ -242,7 +287,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="simulate a case or a run's initial state and inputs")
     s.add_argument("run", help="case1..case5 or a run JSON in the interchange format")
     s.add_argument("--out", required=True, help="output directory for NAME.json, NAME.csv, NAME.png")
-    s.add_argument("--noise", choices=("clean", "low", "high"), default="clean", help="synthetic sensor noise level")
+    s.add_argument("--noise", choices=("clean", "low", "high", "sensors"), default="clean",
+                   help="synthetic sensor noise: clean (default), the paper's low or high level, or sensors (the "
+                        "run's own noise_std)")
     s.add_argument("--seed", type=int, default=0, help="noise seed")
     s.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
     s.add_argument("--model", default=None, help="a saved model directory (closure and mechanisms); default: the "
@@ -264,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--memory", choices=("forget", "laplace"), default="forget",
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
-    a.add_argument("--gradient", choices=tuple(_GRADIENT), default=None,
+    a.add_argument("--gradient", choices=_GRADIENTS, default=None,
                    help="adjoint (default with dopri5: memory independent of the solver's steps), backprop "
                         "(default with rosenbrock; through the "
                         "solver's steps: memory grows with them) or checkpointed (backprop's gradient, one output "
@@ -286,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--train-mechanisms", nargs="+", default=[], metavar="ID",
                    help="train these mechanisms' parameters with the agent, inside their physical bounds, starting "
                         "from their given values (trainers/mechanism_params.py)")
-    a.add_argument("--inputs", choices=tuple(INPUT_SETS), default=None,
+    a.add_argument("--inputs", choices=_INPUT_SETS, default=None,
                    help="input features of a fresh agent (tankode/closures/mlp.py): default = the paper's eight, "
                         "extended = nine (not with --init, whose closure fixes them)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
@@ -332,19 +379,54 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=int, default=3, help="timing repeats (best is kept)")
     b.add_argument("--training", action="store_true", help="also time a window update and measure adjoint memory (~1 min)")
     b.set_defaults(func=cmd_bench)
-    from .sensitivity import add_parser as add_sensitivity_parser
-
-    add_sensitivity_parser(sub)
+    sv = sub.add_parser("sensitivity", help="Sobol (S1, ST) and one-at-a-time sensitivity of p_v to the four h")
+    sv.add_argument("run", help="case1..case5 or a run JSON in the interchange format")
+    sv.add_argument("--out", required=True, help="output directory for sobol.json and sensitivity.png")
+    sv.add_argument("--spread", type=float, default=0.10, help="multipliers 1 +- spread, spread in (0, 1) (default 0.1)")
+    sv.add_argument("--n-base", type=int, default=64, help="Saltelli base sample N, a power of 2; 6N runs (default 64)")
+    sv.add_argument("--seed", type=int, default=0, help="Sobol' scrambling and bootstrap seed")
+    sv.add_argument("--dt", type=float, default=10.0, help="output spacing in s (default 10)")
+    sv.set_defaults(func=cmd_sensitivity)
     return p
+
+
+def _one_line(text: str) -> str:
+    """A message on one line: its lines joined (a failed simulation's state rows included)."""
+    return " ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
+def describe_error(err: BaseException) -> str:
+    """What went wrong, in one line, for any exception that reaches the command line."""
+    if isinstance(err, IsADirectoryError):
+        return f"{err.filename} is a directory; a file was expected"
+    if isinstance(err, FileExistsError):
+        return f"{err.filename} exists and is not a directory"
+    if isinstance(err, PermissionError):
+        return f"{err.filename}: permission denied"
+    if isinstance(err, (FileNotFoundError, NotADirectoryError)) and err.filename is not None:
+        return f"{err.filename}: {err.strerror or 'not found'}"
+    if isinstance(err, (ValueError, RuntimeError, OSError, ArithmeticError)):
+        text = str(err.args[0]) if isinstance(err, (FileNotFoundError, OSError)) and len(err.args) == 1 else str(err)
+        return _one_line(text) or type(err).__name__
+    # Anything else is a defect of tankode, still said in one line, never as a traceback.
+    return f"internal error ({type(err).__name__}: {_one_line(str(err))}); please report it with the command line"
+
+
+def _warning_line(message, category, filename, lineno, line=None) -> str:
+    return f"tankode: warning: {_one_line(str(message))}\n"
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    warnings.formatwarning = _warning_line
     try:
         return args.func(args)
-    except (ValueError, RuntimeError) as err:  # format errors, simulation errors: say what and where
-        print(f"tankode {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"tankode {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # noqa: BLE001 - every failure becomes one line and exit code 2 (describe_error)
+        print(f"tankode {args.command}: error: {describe_error(err)}", file=sys.stderr)
+        return _EXIT_ERROR
 
 
 if __name__ == "__main__":

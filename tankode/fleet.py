@@ -8,14 +8,26 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from .errors import SimulationError
 from .forcing import Forcing
 from .geometry import stack_geometries
-from .integrate import SimulationError
 from .run import Run
 from .schedule import INPUT_NAMES, merge_breakpoints
 from .wall import WallHeatCapacity, resolve_wall_heat_capacity
 
 _I = {name: i for i, name in enumerate(INPUT_NAMES)}
+
+
+def _states_seen(runs) -> tuple[list[float], list[float], list[float]]:
+    """Pressures, vapour and liquid temperatures the runs start at or measure (the property domain must hold them)."""
+    p, T_v, T_l = [], [], []
+    for r in runs:
+        p.append(r.initial.p_v_Pa)
+        T_v.append(r.initial.T_v_K)
+        T_l.append(r.initial.T_l_K)
+        for seen, channel in ((p, "p_v_Pa"), (T_v, "T_v_K"), (T_l, "T_l_K")):
+            seen.extend(r.observations.channel(channel)[1].tolist())
+    return p, T_v, T_l
 
 
 @dataclass(frozen=True)
@@ -41,7 +53,8 @@ class Fleet:
 
     @staticmethod
     def from_runs(runs, surrogate=None) -> "Fleet":
-        """Set up the batch; ``surrogate`` defaults to the cached one for the runs' fluid."""
+        """Set up the batch; ``surrogate`` defaults to the cached one whose domain holds what the runs start
+        at and measure (``tankode.properties.surrogate_covering``: the default, else the wide tier)."""
         from .properties import CoolPropFluid
 
         runs = (runs,) if isinstance(runs, Run) else tuple(runs)
@@ -52,9 +65,9 @@ class Fleet:
             raise ValueError(f"all runs of one fleet must share a fluid, got {sorted(fluids)}")
         fluid_name = runs[0].fluid
         if surrogate is None:
-            from .properties import load_surrogate
+            from .properties import surrogate_covering
 
-            surrogate = load_surrogate(fluid_name)
+            surrogate = surrogate_covering(fluid_name, *_states_seen(runs))
         elif getattr(surrogate, "fluid_name", fluid_name) != fluid_name:
             raise ValueError(f"surrogate is for {surrogate.fluid_name}, runs are {fluid_name}")
         geometry = stack_geometries([r.tank.geometry() for r in runs])

@@ -37,6 +37,10 @@ liquid compressibility parameter and keeps ``V_v + V_l`` equal to the tank volum
 Only the derivative of the constraint is enforced, so a constant offset between the
 surrogate's liquid and vapour pressures (its fitting error) does not perturb the dynamics.
 
+Bulk phase change. Beyond a metastable threshold past saturation, the ullage forms fog and the
+liquid flashes in their volumes (``tankode.bulk``), conserving mass and energy; the printed
+paper has no such term.
+
 Mechanisms. Effects the baseline leaves out (``tankode.mechanisms``: heat leaks, unmetered
 losses, sensor biases, ...) enter through hooks: the forcing actually applied, extra heat into
 each control volume (added to ``e_v``, ``e_l`` and the wall balance, so conservation holds with
@@ -54,7 +58,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
+from .bulk import BulkPhaseChange
 from .closures.base import Closure, ClosureInputs
+from .errors import ImpossibleState
 from .forcing import Forcing
 from .mechanisms import Mechanism
 from .state import N_STATE, STATE_NAMES
@@ -95,13 +101,17 @@ class TankModel(nn.Module):
         wall_heat_capacity_J_per_K: m_w c_w, scalar or ``(env,)`` (J/K); the nominal value
             (a ``wall_heat_capacity_error`` mechanism multiplies it).
         mechanisms: extra physical effects (``tankode.mechanisms``), none by default.
+        bulk: fog in a subcooled ullage and flash in a superheated liquid beyond a metastable
+            threshold (``tankode.bulk.BulkPhaseChange``); None turns it off.
 
     Call ``model(t, s, forcing)`` with ``s`` of shape ``(env, n_state)`` to get ``ds/dt`` of the
     same shape; ``n_state`` is 7 plus the mechanisms' own states (``state_names``).
     """
 
-    def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K, mechanisms=()):
+    def __init__(self, fluid, geometry, closure: Closure, wall_heat_capacity_J_per_K, mechanisms=(),
+                 bulk: BulkPhaseChange | None = BulkPhaseChange()):
         super().__init__()
+        self.bulk = bulk
         mechanisms = tuple(mechanisms)
         for m in mechanisms:
             if not isinstance(m, Mechanism):
@@ -224,11 +234,49 @@ class TankModel(nn.Module):
         """Sensor pressure minus hydrogen pressure from the mechanisms (Pa), shaped like ``T_v_K``."""
         return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
 
+    def _impossible(self, base: Tensor) -> None:
+        """Raise ``ImpossibleState`` where the tank cannot go on: no ullage, no liquid, a wall at 0 K."""
+        with torch.no_grad():
+            m_v, m_l, _, _, T_w, V_v, V_l = base.unbind(-1)
+            for bad, kind, say in (
+                ((V_v <= 0) | (m_v <= 0), "ullage",
+                 lambda e: f"the ullage vanished (vapour volume {float(V_v[e]):.3g} m3, mass {float(m_v[e]):.3g} kg): "
+                           "the liquid filled the tank"),
+                ((V_l <= 0) | (m_l <= 0), "dry",
+                 lambda e: f"the tank ran dry (liquid volume {float(V_l[e]):.3g} m3, mass {float(m_l[e]):.3g} kg)"),
+                (~(T_w > 0), "wall", lambda e: f"the wall temperature fell to {float(T_w[e]):.4g} K"),
+            ):
+                if bool(bad.any()):
+                    e = int(bad.nonzero()[0, 0])
+                    raise ImpossibleState(say(e), kind, e)
+
+    def _far_outside(self, pv, pl) -> None:
+        """Raise ``ImpossibleState`` where a phase is far beyond the property surrogate's domain.
+
+        Both phases are judged at the ullage's pressure and saturation temperature: the liquid's
+        own ``p(u, rho)`` is steep (a solver's trial stage moves it by bars), and the dynamics use
+        only its derivatives (module docstring).
+        """
+        with torch.no_grad():
+            for phase, props in (("vapor", pv), ("liquid", pl)):
+                bad = self.fluid.far_outside(phase, pv.p, props.T, pv.T_sat)
+                if bool(bad.any()):
+                    e = int(bad.nonzero()[0, 0])
+                    d = self.fluid.domain
+                    raise ImpossibleState(
+                        f"the {phase} reached p = {float(pv.p[e]):.4g} Pa, T = {float(props.T[e]):.4g} K "
+                        f"(saturation {float(pv.T_sat[e]):.4g} K), beyond the property domain fitted for "
+                        f"{d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa (the vapour up to {d.T_v_max_K:.4g} K, "
+                        f"{float(d.margin_K(pv.T_sat[e])):.2g} K past saturation on either side here)", "domain", e)
+
     def forward(self, t: Tensor, s: Tensor, forcing: Forcing) -> Tensor:
         base = s[..., :N_STATE]  # (env, 7): the tank's part; mechanisms' own states follow it
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = base.unbind(-1)
+        self._impossible(base)
         fc = self.applied_forcing(forcing)
         f, pv, pl = self.fluxes(s, fc)
+        if hasattr(self.fluid, "far_outside"):  # analytic test fluids have no fitted domain
+            self._far_outside(pv, pl)
         q_v, q_l, q_w = self.extra_heat_W(base, fc, f)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
@@ -238,6 +286,12 @@ class TankModel(nn.Module):
                + J * f.h_vsat_J_per_kg + f.Q_wv_W - f.Q_vi_W + q_v)
         e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
                - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W + q_l)
+        if self.bulk is not None:  # fog leaves the vapour as saturated liquid, flash the liquid as vapour
+            fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl)
+            dm_v = dm_v - fog + flash
+            dm_l = dm_l + fog - flash
+            e_v = e_v - fog * f.h_lsat_J_per_kg + flash * f.h_vsat_J_per_kg
+            e_l = e_l + fog * f.h_lsat_J_per_kg - flash * f.h_vsat_J_per_kg
         # dp/dt of each phase is affine in W = dV_l/dt: a + b W (see module docstring).
         rho_v = m_v / V_v
         rho_l = m_l / V_l

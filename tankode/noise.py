@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .run import Observations
+from .run import NOISE_KEYS, Observations
 
 # Standard deviations per channel (paper, section 6.1.2): low = 2 kPa, 0.2 K, 0.5 mm; high doubles them.
 NOISE_LEVELS: dict[str, dict[str, float]] = {
@@ -12,7 +12,6 @@ NOISE_LEVELS: dict[str, dict[str, float]] = {
     "high": {"p_v": 4000.0, "T_v": 0.4, "T_l": 0.4, "T_w": 0.4, "H_l": 0.001},
 }
 NOISE_LEVELS["clean"] = {k: 0.0 for k in NOISE_LEVELS["low"]}
-NOISE_KEYS = ("p_v", "T_v", "T_l", "T_w", "H_l")
 
 
 def noise_std(level: str) -> dict[str, float]:
@@ -30,11 +29,16 @@ def nominal_R_std(level: str) -> dict[str, float]:
     return noise_std("low" if level == "clean" else level)
 
 
-def add_noise(obs: Observations, level: str, seed: int) -> Observations:
-    """Observations plus independent Gaussian noise of the named level (NaN stays NaN)."""
-    std = np.array([noise_std(level)[k] for k in NOISE_KEYS])
+def add_noise(obs: Observations, std, seed: int) -> Observations:
+    """Observations plus independent Gaussian noise (NaN stays NaN).
+
+    ``std``: a level's name ("clean", "low", "high") or per-sensor standard deviations by
+    ``NOISE_KEYS`` key (absent keys: no noise on that channel).
+    """
+    std = noise_std(std) if isinstance(std, str) else std
+    sigma = np.array([std.get(k, 0.0) for k in NOISE_KEYS])
     rng = np.random.default_rng(seed)
-    noisy = obs.values + rng.standard_normal(obs.values.shape) * std
+    noisy = obs.values + rng.standard_normal(obs.values.shape) * sigma
     return Observations(obs.t_s.copy(), noisy)
 
 

@@ -35,6 +35,8 @@ import math
 import torch
 from torch import Tensor
 
+from .errors import SimulationError
+
 # ROS34PW2 (Rang and Angermann 2005): gamma, alpha_ij and gamma_ij (j < i), b and the embedded bhat.
 _GAMMA = 0.435866521508459
 _ALPHA = ((), (0.871733043016918,), (0.8445706001536942, -0.1129906423648419), (0.0, 0.0, 1.0))
@@ -129,8 +131,6 @@ def rosenbrock_solve(func, z0: Tensor, ts: Tensor, rtol: float, atol: float, fir
     Raises:
         StepFailure: ``_MAX_REJECTS`` consecutive rejections (the step size collapsed).
     """
-    from .integrate import SimulationError  # here to avoid a cycle: integrate dispatches to this module
-
     def spent() -> bool:
         return getattr(func, "_segment_evals", 0) > getattr(func, "max_evals", math.inf)
 
@@ -150,6 +150,7 @@ def rosenbrock_solve(func, z0: Tensor, ts: Tensor, rtol: float, atol: float, fir
     J, fresh = _jacobian(func, t, z, f0), True
     while nxt < len(t_list):
         rejects = 0
+        refused = None
         while True:
             last = t + h >= t_end - 1e-12 * max(abs(t_end), 1.0)
             step = t_end - t if last else h
@@ -161,15 +162,17 @@ def rosenbrock_solve(func, z0: Tensor, ts: Tensor, rtol: float, atol: float, fir
                     err = math.inf
                 elif err <= 1.0:
                     f_new = func(torch.tensor(t + step, dtype=torch.float64), z_new)
-            except SimulationError:
+            except SimulationError as failure:
                 if spent():
                     raise
+                refused = failure  # kept to say why the steps collapsed, if they do
                 err = math.inf
             if err <= 1.0:
                 break
             rejects += 1
             if rejects > _MAX_REJECTS:
-                raise StepFailure(f"ROS34PW2: {rejects} consecutive step rejections, step size {step:.3g} s", t)
+                why = f"; the last trial stage: {refused.message}" if refused is not None else ""
+                raise StepFailure(f"ROS34PW2: {rejects} consecutive step rejections, step size {step:.3g} s{why}", t)
             h = step * _factor(err)
             if not fresh:  # a stale Jacobian may be why: take a new one before shrinking further
                 J, fresh = _jacobian(func, t, z, f0), True

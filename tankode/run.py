@@ -9,7 +9,9 @@ Decisions beyond the format document (v1):
 
 * Time origin. The run starts at the first CSV time stamp ``t0`` (= ``inputs.t_s[0]``); the
   initial state is the state at ``t0``. ``duration_s`` is the length of the run, so
-  ``t_end_s = t0 + duration_s`` (with ``t0 = 0`` this is the document's "last time stamp").
+  ``t_end_s = t0 + duration_s`` (with ``t0 = 0`` this is the document's "last time stamp");
+  a duration that ends before the last time stamp is extended to it, with a note
+  (``Run.notes``): digitised data can end a little after the stated duration.
 * Input cells. An empty input cell means "unchanged" (the previous row's value holds); an
   input is 0 before its first value. ``NaN``/``inf`` in an input is an error, not "unchanged".
   An inlet temperature/pressure of 0 means "not set" and is allowed while its flow is off.
@@ -130,9 +132,10 @@ class RunValueError(ValueError):
     ``tankode.run_io.read_run`` turns it into a :class:`RunFormatError` that names the file and line.
     """
 
-    def __init__(self, key: str, detail: str):
+    def __init__(self, key: str, detail: str, t_s: float | None = None):
         self.key = key
         self.detail = detail
+        self.t_s = t_s  # the time stamp of an offending time-series row, if any
         super().__init__(f"{key}: {detail}")
 
 
@@ -579,7 +582,8 @@ class Run:
         initial: :class:`InitialState` at the start ``t0_s``.
         noise_std: sensor standard deviations (measurement covariance R) by :data:`NOISE_KEYS`
             key, in the channel's unit (Pa, K, m); required for every measured channel.
-        duration_s: length of the run [s]; None = up to the last time stamp.
+        duration_s: length of the run [s]; None = up to the last time stamp. The run never ends
+            before its last time stamp (``t_end_s``, ``notes``).
         observations: :class:`Observations` (default: none).
         inputs: :class:`Schedule`; None = all inputs 0 from the first observation (or t = 0).
         path: the JSON file it was read from, if any (not part of equality).
@@ -625,6 +629,15 @@ class Run:
             raise RunValueError("inputs", f"must be a Schedule, got {type(self.inputs).__name__}")
         sched = self.inputs
         _check_columns_plausible("inputs", INPUT_NAMES, sched.t_s, sched.values, self.fluid)
+        amplitude = sched.values[:, INPUT_NAMES.index("slosh_amplitude_m")]
+        too_wide = amplitude >= self.tank.dims["radius_m"]
+        if too_wide.any():
+            k = int(np.argmax(too_wide))
+            raise RunValueError("inputs.slosh_amplitude_m",
+                                f"at t = {float(sched.t_s[k])!r} s: {float(amplitude[k])!r} m is not smaller than the tank "
+                                f"radius {self.tank.dims['radius_m']!r} m; the sloshing excitation's amplitude A0 is a "
+                                "lateral displacement of the tank, small against its size (is it in mm?)",
+                                t_s=float(sched.t_s[k]))
         t0 = sched.t0_s
         if len(obs) and obs.t_s[0] < t0:
             raise RunValueError(
@@ -641,13 +654,7 @@ class Run:
             d = _as_float("duration_s", self.duration_s)
             if d <= 0:
                 raise RunValueError("duration_s", f"duration_s = {d!r} must be > 0")
-            if d < last - t0 and t0 + d < last:
-                raise RunValueError(
-                    "duration_s",
-                    f"duration_s = {d!r} s is shorter than the data: the last time stamp is {last!r} s "
-                    f"(start {t0!r} s, so duration_s >= {last - t0!r}); data after the end would be ignored",
-                )
-            object.__setattr__(self, "duration_s", d)
+            object.__setattr__(self, "duration_s", d)  # a shorter one than the data: see notes()
         if self.path is not None:
             object.__setattr__(self, "path", str(self.path))
 
@@ -678,6 +685,18 @@ class Run:
     def replace(self, **changes: Any) -> "Run":
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+    def notes(self) -> tuple[str, ...]:
+        """What the run's own fields contradict and how tankode reads it: one sentence each.
+
+        A ``duration_s`` that ends before the last time stamp (digitised data) does not drop
+        the samples after it: the run ends at its last time stamp (``t_end_s``).
+        """
+        last = self._last_time_stamp()
+        if self.t0_s + self.duration_s < last:
+            return (f"{self.name}: duration_s = {self.duration_s:g} s ends before the last time stamp "
+                    f"t = {last:g} s; the run is taken to end there, no sample is dropped",)
+        return ()
 
     def initial_disagreements(self, n_sigma: float = 5.0) -> tuple[str, ...]:
         """Where the samples taken at the start contradict ``initial``: one sentence per channel.
@@ -743,6 +762,14 @@ def _check_columns_plausible(prefix: str, names, t_s: np.ndarray, values: np.nda
             raise RunValueError(f"{prefix}.{name}", f"at t = {float(t_s[k])!r} s: {problem}")
 
 
+@lru_cache(maxsize=None)
+def _critical_point(fluid: str) -> tuple[float, float]:
+    """(T_crit [K], p_crit [Pa]) of the fluid (CoolProp)."""
+    import CoolProp.CoolProp as CP
+
+    return float(CP.PropsSI("Tcrit", fluid)), float(CP.PropsSI("pcrit", fluid))
+
+
 def _check_initial_for_fluid(initial: InitialState, fluid: str) -> None:
     for name in ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K"):
         v = getattr(initial, name)
@@ -750,6 +777,14 @@ def _check_initial_for_fluid(initial: InitialState, fluid: str) -> None:
             problem = _plausibility_problem(name, v, fluid)
             if problem:
                 raise RunValueError(f"initial.{name}", problem)
+    # A tank holds liquid under its vapour: both exist only below the critical point.
+    T_c, p_c = _critical_point(fluid)
+    if initial.p_v_Pa >= p_c:
+        raise RunValueError("initial.p_v_Pa", f"{_g(initial.p_v_Pa)} Pa is above the critical pressure {p_c:.6g} Pa "
+                                              f"of {fluid}: liquid and vapour do not coexist there")
+    if initial.T_l_K >= T_c:
+        raise RunValueError("initial.T_l_K", f"{_g(initial.T_l_K)} K is above the critical temperature {T_c:.4g} K "
+                                             f"of {fluid}: there is no liquid")
 
 
 def _check_noise_std(noise: Any) -> dict[str, float]:

@@ -40,9 +40,10 @@ from .run import (
     _plausibility_problem,
     canonical_fluid,
 )
+from .files import OutputError
 from .schedule import INPUT_NAMES, Schedule, ScheduleError, _input_value_problem
 
-__all__ = ["read_run", "write_run", "read_timeseries_csv"]
+__all__ = ["read_run", "write_run", "read_timeseries_csv", "timeseries_path"]
 
 _JSON_TOP_REQUIRED = ("name", "fluid", "tank", "initial", "timeseries")
 _JSON_TOP_OPTIONAL = ("source", "noise_std", "duration_s")
@@ -170,6 +171,7 @@ class _CsvData:
     last_t_s: float
     first_line: dict[str, int]  # observation channel -> line of its first sample
     last_line: int
+    input_line: dict[float, int]  # time stamp -> line of a row that sets inputs
 
 
 def _read_csv(path: Path, fluid: str) -> _CsvData:
@@ -276,7 +278,7 @@ def _read_csv(path: Path, fluid: str) -> _CsvData:
     observations = Observations(
         np.array(obs_t), np.array(obs_v) if obs_v else np.zeros((0, len(OBS_CHANNELS)))
     )
-    return _CsvData(observations, schedule, times[0], times[-1], first_line, line)
+    return _CsvData(observations, schedule, times[0], times[-1], first_line, line, sch_line)
 
 
 def _parse_cell(path: Path, line: int, column: str, cell: str) -> float | None:
@@ -347,6 +349,9 @@ def read_run(path) -> Run:
 
     ts_name = ctx.string(data["timeseries"], "timeseries")
     csv_path = path.parent / ts_name
+    if not _beside_or_under(csv_path, path.parent):
+        raise ctx.error("timeseries", f"{ts_name!r} must lie beside the JSON file or in a folder under it "
+                                      f"({path.parent}), not elsewhere on the system")
     if not csv_path.is_file():
         raise ctx.error("timeseries", f"file {str(csv_path)!r} not found (the path is relative to the JSON file)")
     ts = _read_csv(csv_path, fluid)
@@ -360,12 +365,6 @@ def read_run(path) -> Run:
                 f"(line {_locate(ctx.text, 'noise_std')}) has no '{_NOISE_OF[ch]}' entry; "
                 "the measurement covariance R needs it",
             )
-    if duration is not None and duration < ts.last_t_s - ts.t0_s and ts.t0_s + duration < ts.last_t_s:
-        raise ctx.error(
-            "duration_s",
-            f"duration_s = {duration!r} s is shorter than the time series: {csv_path} ends at t = {_g(ts.last_t_s)} s "
-            f"(line {ts.last_line}; start {_g(ts.t0_s)} s)",
-        )
     if duration is None:
         duration = ts.last_t_s - ts.t0_s
         if duration <= 0:
@@ -376,8 +375,21 @@ def read_run(path) -> Run:
             name=name, fluid=fluid, source=source, tank=tank, initial=initial, noise_std=noise_std,
             duration_s=duration, observations=ts.observations, inputs=inputs, path=str(path),
         )
-    except RunValueError as e:  # everything above should have caught it with a better location
+    except RunValueError as e:  # what needs the whole run (an input against the tank): name its CSV row
+        if e.key.startswith("inputs.") and e.t_s in ts.input_line:
+            raise RunFormatError(csv_path, ts.input_line[e.t_s], e.key.split(".", 1)[1], e.detail) from None
         raise ctx.from_field(e) from None
+
+
+def _beside_or_under(path: Path, folder: Path) -> bool:
+    """Whether ``path`` (links resolved) lies in ``folder`` or below it."""
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def timeseries_path(json_path) -> Path:
+    """The CSV a run's JSON names (``timeseries``, relative to the JSON), for a run ``read_run`` accepted."""
+    json_path = Path(json_path)
+    return json_path.parent / json.loads(json_path.read_text(encoding="utf-8"))["timeseries"]
 
 
 def _fmt(x: float) -> str:
@@ -389,14 +401,21 @@ def _fmt(x: float) -> str:
 def write_run(run: Run, out_dir) -> tuple[Path, Path]:
     """Write ``NAME.json`` and ``NAME.csv`` into ``out_dir`` (created); return their paths.
 
+    Refuses (``tankode.files.OutputError``) to replace the files ``run`` was read from.
+
     ``read_run`` of the result gives a Run equal to ``run`` (floats are written bit-exact).
     """
     if not isinstance(run, Run):
         raise TypeError(f"write_run needs a Run, got {type(run).__name__}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     json_path = out / f"{run.name}.json"
     csv_path = out / f"{run.name}.csv"
+    if run.path is not None and Path(run.path).is_file():
+        sources = {Path(run.path).resolve(), timeseries_path(run.path).resolve()}
+        if {json_path.resolve(), csv_path.resolve()} & sources:
+            raise OutputError(f"writing run {run.name!r} into {out} would replace the files it was read from "
+                              f"({run.path}); choose another directory")
+    out.mkdir(parents=True, exist_ok=True)
 
     obs = run.observations
     sched = run.inputs.compressed()

@@ -10,11 +10,12 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-import torch
-
 from typing import NamedTuple
 
+import torch
+
 from .closures import FEATURE_NAMES, ConstantClosure, MLPClosure, MLPConfig, ReferenceClosure, ReferenceCorrelation, ScaledClosure
+from .files import load_tensors
 from .mechanisms import Mechanism, mechanisms_from_spec, mechanisms_spec
 
 FORMAT = "tankode-model-1"
@@ -53,6 +54,7 @@ def closure_from_spec(spec: dict):
         cfg = dict(spec["config"])
         # Models saved before the feature set became configurable used the default eight inputs.
         cfg["features"] = tuple(cfg.get("features", FEATURE_NAMES))
+        cfg.setdefault("base", "constant")  # models saved before the residual agent had the constant base
         cfg["hidden"] = tuple(cfg["hidden"])
         cfg["h_ref_W_m2K"] = tuple(cfg["h_ref_W_m2K"])
         return MLPClosure(MLPConfig(**cfg))
@@ -94,9 +96,20 @@ def load_model(model_dir) -> SavedModel:
         raise ValueError(f"{path}:{err.lineno}:{err.colno}: invalid JSON: {err.msg}") from None
     if meta.get("format") != FORMAT:
         raise ValueError(f"{path}: format {meta.get('format')!r} is not {FORMAT!r}")
-    closure = closure_from_spec(meta["closure"])
-    weights = torch.load(d / "weights.pt", map_location="cpu", weights_only=True)
-    closure.load_state_dict(weights)
+    if not isinstance(meta, dict) or not isinstance(meta.get("fluid"), str) or not isinstance(meta.get("closure"), dict):
+        raise ValueError(f"{path}: a model needs 'fluid' (a string) and 'closure' (an object)")
+    try:
+        closure = closure_from_spec(meta["closure"])
+    except KeyError as err:
+        raise ValueError(f"{path}: closure: missing key {err}") from None
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: closure: {err}") from None
+    weights = load_tensors(d / "weights.pt", "weights file")
+    try:
+        closure.load_state_dict(weights)
+    except (RuntimeError, TypeError, AttributeError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"{d / 'weights.pt'}: the weights do not fit the closure of {path} ({first})") from None
     try:
         mechanisms = tuple(mechanisms_from_spec(meta.get("mechanisms", [])))
     except (ValueError, TypeError) as err:

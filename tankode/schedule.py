@@ -323,7 +323,7 @@ def _check_rows(t: np.ndarray, v: np.ndarray) -> None:
                 k = int(np.argmax(missing))
                 raise ScheduleError(
                     need, float(t[k]),
-                    f"'{flow}' = {v[k, _INDEX[flow]]!r} is on but '{need}' is not set (0); "
+                    f"'{flow}' = {float(v[k, _INDEX[flow]])!r} is on but '{need}' is not set (0); "
                     f"it is needed while '{flow}' > 0",
                 )
 

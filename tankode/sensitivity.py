@@ -9,7 +9,7 @@ and looks at the pressure response. Here:
   in [-spread, +spread], time-resolved (first-order S1 and total ST indices at every output
   time, with bootstrap confidence intervals). All samples run as environments of batched ODEs.
 * ``one_at_a_time``: the paper's one-at-a-time curves (one multiplier varied, the others 1).
-* ``plot_sensitivity``: the figure; ``cmd_sensitivity`` / ``add_parser``: the CLI command.
+* ``plot_sensitivity``: the figure (``tankode sensitivity`` on the command line).
 
 References:
     A. Saltelli, P. Annoni, I. Azzini, F. Campolongo, M. Ratto, S. Tarantola (2010),
@@ -190,7 +190,7 @@ def _as_run(case_or_run):
 
 def _pressures(run, factors: np.ndarray, batch: int, t_eval, output_dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """p_v (n, T) in Pa for each row of ``factors`` (n, 4), in batched ODEs of <= ``batch`` runs."""
-    from .simulate import simulate
+    from .simulation import simulate
 
     base = ReferenceClosure()
     chunks, t_s = [], None
@@ -337,31 +337,5 @@ def plot_sensitivity(result: SobolResult, oat: dict | None, path, *, slosh: list
     return path
 
 
-def cmd_sensitivity(args) -> int:
-    """``tankode sensitivity CASE_OR_RUN --out DIR``: writes DIR/sobol.json, DIR/sensitivity.png."""
-    run = _as_run(args.run)
-    res = sobol_indices(run, spread=args.spread, n_base=args.n_base, seed=args.seed, output_dt_s=args.dt)
-    oat = one_at_a_time(run, spread=args.spread, output_dt_s=args.dt)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "sobol.json").write_text(json.dumps(res.to_json()))
-    png = plot_sensitivity(res, oat, out / "sensitivity.png", slosh=slosh_intervals(run, res.t_s))
-    print(f"{res.n_samples} samples of {run.name} simulated in {res.wall_s:.1f} s")
-    print(f"wrote {out / 'sobol.json'}, {png}")
-    return 0
-
-
-def add_parser(sub) -> None:
-    """Add the ``sensitivity`` sub-command to an argparse sub-parsers object."""
-    s = sub.add_parser("sensitivity", help="Sobol (S1, ST) and one-at-a-time sensitivity of p_v to the four h")
-    s.add_argument("run", help="case1..case5 or a run JSON in the interchange format")
-    s.add_argument("--out", required=True, help="output directory for sobol.json and sensitivity.png")
-    s.add_argument("--spread", type=float, default=0.10, help="multipliers 1 +- spread, spread in (0, 1) (default 0.1)")
-    s.add_argument("--n-base", type=int, default=64, help="Saltelli base sample N, a power of 2; 6N runs (default 64)")
-    s.add_argument("--seed", type=int, default=0, help="Sobol' scrambling and bootstrap seed")
-    s.add_argument("--dt", type=float, default=10.0, help="output spacing in s (default 10)")
-    s.set_defaults(func=cmd_sensitivity)
-
-
 __all__ = ["ScaledClosure", "SobolResult", "sobol_indices", "sobol_analyze", "saltelli_sample", "one_at_a_time",
-           "plot_sensitivity", "slosh_intervals", "cmd_sensitivity", "add_parser", "NAMES"]
+           "plot_sensitivity", "slosh_intervals", "NAMES"]

@@ -14,7 +14,7 @@ import torch
 from tankode.run import InitialState, Observations, Run, TankSpec
 from tankode.run_io import read_run, write_run
 from tankode.schedule import Schedule
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.solver import Backprop, NoGradient
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, window_edges
@@ -346,7 +346,7 @@ def test_a_prediction_from_t0_that_fails_is_logged_not_raised(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from tankode.closures import MLPClosure, MLPConfig
-    from tankode.integrate import SimulationError
+    from tankode.errors import SimulationError
     from trainers.assimilate import Assimilator
     from trainers.logger import TrainingLogger
 
@@ -484,5 +484,7 @@ def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_checkpointed_train
         report, _, _ = a.update(0, a.s0)
         notes[type(gradient).__name__] = report
     adj, bp = notes["Adjoint"], notes["Checkpointed"]
-    assert adj.note.endswith(ADJOINT_DIVERGED) and "non-finite state" in adj.note and adj.n_evals == 0
+    # The backward state diverges: to NaN, or first beyond the property domain, which stops it sooner.
+    assert adj.note.endswith(ADJOINT_DIVERGED) and adj.n_evals == 0
+    assert "non-finite state" in adj.note or "beyond the property domain" in adj.note
     assert bp.note == "" and bp.n_evals >= 1 and np.isfinite(bp.grad_norm) and bp.grad_norm > 0

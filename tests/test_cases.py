@@ -9,7 +9,7 @@ from tankode.fleet import Fleet
 from tankode.model import TankModel
 from tankode.closures import ReferenceClosure
 from tankode.run_io import read_run
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.state import STATE_NAMES
 
 from mhtb_data import MHTB, needs_mhtb
@@ -118,8 +118,8 @@ def test_gradcheck_rhs_through_the_real_surrogate():
 def test_domain_is_checked_over_each_runs_own_span_only():
     # A fleet integrates every run to the longest one's end: a short run's state past its own
     # end is not scored and must not fail the simulation; within its span it must.
-    from tankode.integrate import SimulationError
-    from tankode.simulate import _check_domain
+    from tankode.errors import SimulationError
+    from tankode.simulation import _check_domain
 
     fleet = Fleet.from_runs([case1().until(600.0), case1()])
     t = torch.tensor([0.0, 300.0, 600.0, 1200.0], dtype=torch.float64)
@@ -134,7 +134,8 @@ def test_domain_is_checked_over_each_runs_own_span_only():
 def test_a_failed_simulation_names_the_mechanisms_own_states():
     # The error prints the state where the solver stopped; a mechanism's own state must be
     # printed by its name, as TankModel.state_names gives it, not as an anonymous extra.
-    from tankode.integrate import SimulationError, integrate, state_scale
+    from tankode.errors import SimulationError
+    from tankode.integrate import integrate, state_scale
     from tankode.mechanisms import MECHANISMS
     from tankode.solver import AdaptiveRK, NoGradient
 

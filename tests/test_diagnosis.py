@@ -414,9 +414,9 @@ def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_i
 def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_node_leads_but_its_shell_differs_per_test():
     """Held at the published correlation, h_wv no longer absorbs the node: its sheet resistance is
     resolved, and it is first by score, dBIC and held-out gain. It is not named: each test alone,
-    under the closure calibrated on the other, puts the shell elsewhere (measured, eighteenth
-    session: 28 and 5.5 K/W against 13 and 18). The seventeenth session named it: one fold's fit
-    had stopped in a minimum with 25 times the chi2 of the one the all-data start reaches."""
+    under the closure calibrated on the other, puts the shell elsewhere (``experiments/README.md``).
+    Each fold's fit also starts from the all-data estimate: from its own start alone a fold can stop
+    in a minimum with many times the chi2 that start reaches, and the node would then be named."""
     from tankode import read_run
     from tankode.diagnosis import LeaveOneRunOut
 
@@ -514,8 +514,8 @@ def test_splits_partition_the_samples_and_validate():
 @pytest.mark.slow
 def test_a_refit_whose_one_step_start_fails_restarts_from_zero_and_says_so(monkeypatch):
     # The score test's one-step estimate extrapolates a slope at 0 and can land where the model
-    # cannot be integrated (first seen with a surface layer hidden in case 3 whose start ran away
-    # above saturation; that start now integrates on this machine, so the failure is forced):
+    # cannot be integrated (e.g. a surface layer whose start runs away above saturation; such a
+    # start depends on the machine's round-off, so the failure is forced here):
     # here the inert gas's start is 9e4 mol, more than case 4's ullage holds at its initial
     # pressure reading (about 6,600 mol), so the refit must restart from 0 and say why.
     import dataclasses

@@ -7,7 +7,7 @@ from finite_differences import central_difference
 from tankode.cases import case1
 from tankode.closures import ConstantClosure, MLPClosure, MLPConfig
 from tankode.mechanisms import make_mechanism
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.solver import Adjoint, Backprop, Checkpointed, NoGradient
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator
@@ -163,7 +163,7 @@ def test_adjoint_rejects_lsoda():
 def test_a_failure_in_the_adjoint_backward_pass_is_a_simulation_error(data):
     """The backward solve runs outside integrate(): a bad state there must still be a SimulationError
     (which the trainers reject as an infeasible trial point), naming the time, not a bare ValueError."""
-    from tankode.integrate import SimulationError
+    from tankode.errors import SimulationError
 
     class FailsBackward(ConstantClosure):
         armed = False

@@ -10,7 +10,7 @@ from tankode.closures import ConstantClosure
 from tankode.mechanisms import make_mechanism
 from tankode.run import InitialState, Run, TankSpec
 from tankode.schedule import Schedule
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.solver import Adjoint, Backprop, Checkpointed
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator

@@ -10,9 +10,10 @@ import torch
 from tankode import get_case, simulate
 from tankode.analytic import AnalyticFluid, analytic_state
 from tankode.closures import ReferenceClosure, ScaledClosure
+from tankode.errors import SimulationError
 from tankode.forcing import Forcing
 from tankode.geometry import geometry_from_spec
-from tankode.integrate import SimulationError, integrate, state_scale
+from tankode.integrate import integrate, state_scale
 from tankode.mechanisms import MECHANISMS, make_mechanism, mechanisms_from_spec, mechanisms_spec
 from tankode.mechanisms.noncondensable import R_J_PER_MOLK
 from tankode.model import TankModel

@@ -1,7 +1,7 @@
 """Tests of tankode.properties: CoolProp reference, RBF, Peng-Robinson, surrogate accuracy,
 exact pressure derivatives, differentiability, batching, domain checks and the disk cache.
 
-One surrogate is fitted per session (default config, ~1-2 s) into a temporary cache directory.
+One surrogate is fitted per test run (default config, ~1-2 s) into a temporary cache directory.
 """
 
 from __future__ import annotations

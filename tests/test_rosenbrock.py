@@ -11,10 +11,11 @@ from finite_differences import central_difference
 from mhtb_data import MHTB, needs_mhtb
 from tankode.cases import case1
 from tankode.closures import ConstantClosure
-from tankode.integrate import SimulationError, integrate
+from tankode.errors import SimulationError
+from tankode.integrate import integrate
 from tankode.rosenbrock import rosenbrock_solve
 from tankode.run_io import read_run
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.solver import LSODA, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator
@@ -113,7 +114,7 @@ def test_case1_matches_the_reference_simulation():
 
 
 def test_closure_gradient_matches_dopri5_and_finite_differences():
-    """The issue's gradient check, for the Rosenbrock solver: on a 3-minute window of case 1 with
+    """The gradient check of tests/test_gradients.py, for the Rosenbrock solver: on a 3-minute window of case 1 with
     sloshing, Backprop and Checkpointed through ROS34PW2 agree with central finite differences and
     with Backprop through dopri5 to 1e-4 relative (norm and direction; measured 3e-7 and 2.4e-6)."""
     run = case1()

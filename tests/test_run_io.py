@@ -307,13 +307,12 @@ def _meta_with(path: str, value=None, delete=False) -> dict:
         (_meta_with("tank.shape", "cylinder"), "tank.shape", '"shape"', "unknown shape"),
         (_meta_with("noise_std.p", 1.0), "noise_std.p", '"p"', "unknown sensor"),
         (_meta_with("noise_std.T_v", 0.0), "noise_std.T_v", '"T_v": 0', "> 0"),
-        (_meta_with("duration_s", 35), "duration_s", '"duration_s"', "shorter"),
         (_meta_with("name", 3), "name", '"name"', "must be a string"),
         (_meta_with("timeseries", "nope.csv"), "timeseries", '"timeseries"', "not found"),
     ],
     ids=["fill-ratio", "unknown-fluid", "initial-p-bar", "initial-T-celsius", "unknown-key", "missing-nested",
          "missing-top", "wrong-type", "unknown-tank-key", "unknown-shape", "noise-key", "noise-zero",
-         "duration-short", "name-type", "missing-csv"],
+         "name-type", "missing-csv"],
 )
 def test_json_errors_name_file_line_key(tmp_path, meta, key, needle, fragment):
     e = _json_error(tmp_path, meta=meta)
@@ -355,8 +354,10 @@ def test_run_in_code_names_parameter_and_range():
         Schedule.from_steps([(0, {"mdot_v_in_kg_s": 1e-3, "T_v_in_K": -240.0, "p_v_in_Pa": 5e5})])
     with pytest.raises(ValueError, match=r"inputs\.T_v_in_K.*triple point of ParaHydrogen"):
         _synthetic_run(inputs=Schedule.from_steps([(0, {"mdot_v_in_kg_s": 1e-3, "T_v_in_K": 3.0, "p_v_in_Pa": 5e5})]))
-    with pytest.raises(ValueError, match=r"duration_s.*shorter"):
-        _synthetic_run(duration_s=100.0)
+    # A duration that ends before the data (digitised runs) drops nothing: the run ends at its last sample.
+    short = _synthetic_run(duration_s=100.0)
+    assert short.t_end_s > short.t0_s + 100.0
+    assert "no sample is dropped" in short.notes()[0]
     with pytest.raises(ValueError, match="fluid.*Hydrogenn"):
         _synthetic_run(fluid="Hydrogenn")
     with pytest.raises(ValueError, match="tank.radius_m"):
@@ -467,7 +468,7 @@ def test_schedule_misc():
 
 def test_until_cuts_observations_and_inputs():
     from tankode.cases import case1
-    from tankode.simulate import simulate
+    from tankode.simulation import simulate
     from tankode.synthetic import solution_to_runs
 
     run = case1()

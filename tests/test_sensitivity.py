@@ -1,6 +1,5 @@
 """Sobol sensitivity (tankode.sensitivity): estimator on Ishigami, ScaledClosure, tiny case-1 run, errors."""
 
-import argparse
 import math
 
 import numpy as np
@@ -11,7 +10,8 @@ from SALib.test_functions import Ishigami
 
 from tankode.cases import get_case
 from tankode.closures import ConstantClosure, ReferenceClosure
-from tankode.sensitivity import (ScaledClosure, add_parser, one_at_a_time, saltelli_sample, sobol_analyze,
+from tankode.cli import build_parser
+from tankode.sensitivity import (ScaledClosure, one_at_a_time, saltelli_sample, sobol_analyze,
                                  sobol_indices)
 
 # Ishigami (a=7, b=0.1) on [-pi, pi]^3: analytic indices (Ishigami & Homma 1990; Saltelli 2010).
@@ -34,7 +34,7 @@ def test_sobol_analyze_recovers_ishigami_indices():
         np.testing.assert_array_less(np.abs(est - np.array(truth)), 2 * ci)
     assert np.isnan(r["S1"][1]).all() and np.isnan(r["ST_conf"][1]).all()
     # the bootstrap is seeded, whatever numpy's global generator holds (SALib ignores a seed of 0,
-    # so the CIs once changed with the tests run before in the same worker)
+    # so unseeded CIs would change with the tests run before in the same worker)
     np.random.seed(12345)
     again = sobol_analyze(X, np.stack([Y, np.full_like(Y, 5.0)], axis=1), bounds, seed=0)
     assert np.array_equal(again["S1_conf"][0], r["S1_conf"][0]) and np.array_equal(again["ST_conf"][0], r["ST_conf"][0])
@@ -112,10 +112,8 @@ def test_other_parameter_errors():
         saltelli_sample(-0.1, 8)
 
 
-def test_add_parser_defaults():
-    p = argparse.ArgumentParser()
-    add_parser(p.add_subparsers(dest="command"))
-    args = p.parse_args(["sensitivity", "case1", "--out", "x"])
+def test_sensitivity_parser_defaults():
+    args = build_parser().parse_args(["sensitivity", "case1", "--out", "x"])
     assert (args.spread, args.n_base, args.seed, args.dt) == (0.1, 64, 0, 10.0) and callable(args.func)
 
 

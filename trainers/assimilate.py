@@ -10,8 +10,8 @@ Initial state of each window. Growing windows always start from the run's initia
 metadata's p, T and fill). A fixed window k > 0 starts from the state at ``t_k`` of the
 simulation of window k-1 with the agent as updated on window k-1 (``window_start="model"``,
 the default): the model carries its own state, so an agent is only rewarded for being right
-over the whole stream (on case 1 this gives the better whole-hour prediction of the final
-agent: pressure RMSE 2.2 sigma against 10 sigma with data starts). With
+over the whole stream (on case 1 this gives the final agent a whole-hour pressure error
+several times smaller than data starts do; ``experiments/README.md``). With
 ``window_start="data"`` every measured channel (p_v, T_v, T_l, T_w, H_l) is replaced by the
 value at ``t_k`` of a straight line fitted to its last samples (at most ``FIT_SPAN_S``, none
 before the last input change, which would bend the line) and the state is rebuilt from them
@@ -43,17 +43,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tankode._threads import single_threaded
 from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
+from tankode.errors import SimulationError
 from tankode.fleet import Fleet
-from tankode.integrate import SimulationError, integrate, state_scale
+from tankode.integrate import integrate, state_scale
 from tankode.model import TankModel
 from tankode.solver import AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from tankode.state import N_STATE
+from tankode.threads import single_threaded
 
 from .checkpoint import load_checkpoint, save_checkpoint
 from .cost import Window, cost, cost_terms
-from .evaluate import theta_along
+from .evaluate import closure_inputs_along
 from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .mechanism_params import TrainedMechanisms
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
@@ -99,8 +100,8 @@ class AssimilationConfig:
         integrator: the ODE solver inside training: "dopri5" (``AdaptiveRK``, explicit: fast on
             tanks that are not stiff, the paper's cases) or "rosenbrock" (``Rosenbrock``, linearly
             implicit: for stiff tanks, e.g. a light wall, where dopri5's steps are held to
-            fractions of a second; MHTB P263981D's first 2 h: 146 right-hand sides against
-            22,274, measured by experiments/mhtb_agent.py). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
+            fractions of a second: on the MHTB tests about a hundred times fewer right-hand sides,
+            ``experiments/mhtb_agent.py``). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
@@ -425,10 +426,12 @@ class Assimilator:
             pred = self.model.observe(states[:, obs_index])
             terms = cost_terms(pred, window)
             after = float(terms.sum() / window.n_env)
-            theta = theta_along(self.model, self.fleet, t_eval, states)  # (env, T, 4)
+            inputs = closure_inputs_along(self.model, self.fleet, t_eval, states)
+            theta = torch.stack([self.model.closure(x) for x in inputs], dim=1)  # (env, T, 4)
             saturated = []
             if isinstance(self.closure, MLPClosure):
-                saturated = (self.closure.output_position(theta).abs() >= SATURATED_TANH).double().mean(1).tolist()
+                position = torch.stack([self.closure.output_position(x) for x in inputs], dim=1)
+                saturated = (position.abs() >= SATURATED_TANH).double().mean(1).tolist()
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,

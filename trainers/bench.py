@@ -8,7 +8,7 @@ import torch
 
 from tankode.cases import get_case
 from tankode.schedule import Schedule
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 from tankode.solver import Adjoint, Backprop, Checkpointed, NoGradient
 from tankode.synthetic import solution_to_runs
 

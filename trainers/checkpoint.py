@@ -7,6 +7,8 @@ from pathlib import Path
 
 import torch
 
+from tankode.files import load_tensors
+
 
 def save_checkpoint(path, payload: dict) -> None:
     """Write ``payload`` (tensors, numbers, strings, lists, dicts) atomically to ``path``.
@@ -25,10 +27,7 @@ def save_checkpoint(path, payload: dict) -> None:
 
 def load_checkpoint(path) -> dict:
     """Load a checkpoint written by ``save_checkpoint`` with ``weights_only=True`` (no pickled code)."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no checkpoint at {path}")
-    return torch.load(path, map_location="cpu", weights_only=True)
+    return load_tensors(path, "checkpoint")
 
 
 __all__ = ["save_checkpoint", "load_checkpoint"]

@@ -21,9 +21,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-N_CHANNELS = 5
-CHANNELS = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
-_NOISE_KEYS = ("p_v", "T_v", "T_l", "T_w", "H_l")
+from tankode.run import NOISE_KEYS, OBS_CHANNELS
+
+CHANNELS = OBS_CHANNELS
+N_CHANNELS = len(CHANNELS)
 
 
 def _midpoint_weights(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -69,7 +70,7 @@ class Window:
             obs = run.observations
             sel = (obs.t_s > t0_s) & (obs.t_s <= t1_s)
             idx = np.searchsorted(times, obs.t_s[sel])
-            for c, key in enumerate(_NOISE_KEYS):
+            for c, key in enumerate(NOISE_KEYS):
                 v = obs.values[sel, c]
                 ok = np.isfinite(v)
                 if not ok.any():

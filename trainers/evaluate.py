@@ -8,7 +8,7 @@ import torch
 from tankode.closures import ReferenceClosure
 from tankode.fleet import Fleet
 from tankode.model import TankModel
-from tankode.simulate import simulate
+from tankode.simulation import simulate
 
 from .cost import CHANNELS, Window, cost_terms
 

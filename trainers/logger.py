@@ -12,7 +12,7 @@ import torch  # noqa: E402
 from torch.utils.tensorboard import SummaryWriter  # noqa: E402
 
 from tankode.closures import THETA_NAMES  # noqa: E402
-from tankode.integrate import SimulationError  # noqa: E402
+from tankode.errors import SimulationError  # noqa: E402
 from tankode.solver import NoGradient  # noqa: E402
 
 from .cost import CHANNELS  # noqa: E402

@@ -18,11 +18,10 @@ keeps it after the training, with its values also in the usual buffer.
 
 Which window mode. A constant of the tank is learned from all the data so far, so train it
 with growing windows: in fixed windows it is refitted to each window alone, like the weights,
-and it drifts with what the agent compensates there. Measured on the MHTB tests with the dry
-wall node (``experiments/mhtb_agent.py``): with growing windows P263981D puts the shell at
-12.80 and 12.75 K/W from starts of 3 and 30 K/W, and P263968K at 12.72 and 12.77; with fixed
-windows the same starts end at 32.6 and 13.8 K/W on P263981D, and P263968K's fixed windows run
-it to the bound of 1000 K/W.
+and it drifts with what the agent compensates there. On the MHTB tests with the dry wall node
+(``experiments/mhtb_agent.py``, figures in ``experiments/README.md``), growing windows put the
+shell at the same value from starts an order of magnitude apart, on either test; fixed windows
+end where the start leaves them, or at the parameter's bound.
 
 Limits:
 

@@ -22,17 +22,14 @@ moves its coefficients on window k's states (``T_k / T_m`` converts window k's t
 cost into window m's units). Only the directions the old data determined are held (e.g. h_wl
 and h_li + h_wv), so the agent stays free where they said nothing.
 
-Measured (experiments/README.md, identification.py --memory laplace, seeds 0 and 2): it makes
-the real-time identification **worse**, h_li within 128 % and 81 % during sloshing against 38 %
-and 44 % with ``Forget()``, and the final agent's pressure RMSE 8.1 and 4.1 sigma against 2.2
-and 1.4. The windows' costs after the update stay at 3-5 instead of the noise floor (2.5): what
-the earlier windows determined is determined *given the model's own starting state*, which
-carries the earlier agents' errors, so the prior locks in coefficients that compensated a
-drifted state and fights the new data. On the multi-environment study (seed 0) the agent
-trained on case 1 predicts case 5 with J = 3.51 against 49.6 (the final agent keeps what every
-window taught), but with seed 1 15.5 against 13.8, and the agents trained on cases 2 + 3 (+ 4)
-stay far off (144.5 and 634 against 383.6 and 5113): no trend with the environments either.
-``Forget()`` (the paper's) stays the default.
+Effect (figures in ``experiments/README.md``, ``identification.py --memory laplace`` and the
+multi-environment study): it makes the real-time identification **worse** than ``Forget()``,
+in the coefficients during sloshing and in the final agent's pressure RMSE, and the windows'
+costs after the update stay above the noise floor: what the earlier windows determined is
+determined *given the model's own starting state*, which carries the earlier agents' errors,
+so the prior locks in coefficients that compensated a drifted state and fights the new data.
+On the multi-environment study it helps or hurts depending on the seed and the training
+environments, with no trend. ``Forget()`` (the paper's) stays the default.
 
 Limits: the prior is on window means of ln theta, not on their shape within a window; the
 states ``s_k`` are the model's, not the truth's; the Hessian is the one at the window's end,

@@ -27,9 +27,9 @@ import numpy as np
 
 from tankode.cases import get_case
 from tankode.closures import Closure, MLPClosure, MLPConfig
-from tankode.integrate import SimulationError
+from tankode.errors import SimulationError
 from tankode.run import Run
-from tankode.simulate import Solution, simulate
+from tankode.simulation import Solution, simulate
 from tankode.synthetic import solution_to_runs
 
 from .assimilate import AssimilationConfig, Assimilator, WindowReport, window_edges

@@ -15,7 +15,7 @@ from torch import Tensor
 from tankode.closures import Closure, ClosureInputs, MLPClosure, ReferenceClosure
 from tankode.closures.mlp import mlp_features
 from tankode.run import Run
-from tankode.simulate import Solution
+from tankode.simulation import Solution
 
 from .evaluate import closure_along
 

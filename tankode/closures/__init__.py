@@ -1,11 +1,15 @@
 """Closures theta = g(s; w) for the four heat transfer coefficients."""
 
 from .base import THETA_NAMES, Closure, ClosureInputs, ConstantClosure
-from .mlp import EXTENDED_FEATURES, FEATURE_NAMES, INPUT_SETS, MLPClosure, MLPConfig, mlp_features
+from .mlp import BASES, EXTENDED_FEATURES, FEATURE_NAMES, INPUT_SETS, MLPClosure, MLPConfig, mlp_features
+from .natural import NaturalConvection, NaturalConvectionClosure
 from .scaled import ScaledClosure
 from .reference import ReferenceClosure, ReferenceCorrelation, first_slosh_frequency_Hz, wave_height_m
 
 __all__ = [
+    "BASES",
+    "NaturalConvection",
+    "NaturalConvectionClosure",
     "Closure",
     "ClosureInputs",
     "ConstantClosure",

@@ -18,7 +18,14 @@ paper); ``EXTENDED_FEATURES`` replaces ``f_over_f11`` by ``lnRe_wave`` and ``lnG
  lnRe_wave        ln(1 + Re_b / 1e4), Re_b = 2 pi f_e b R / nu_l (ours)       ``/ 5``
  lnGr_li_signed   sign(T_l - T_sat) ln(|Gr_li| + 1), liquid-interface (ours)  ``/ 30``
  f_over_f11       f_e / f_11, excitation over first sloshing frequency        as is
+ dT_wv_signed     tanh((T_w - T_v) / 1 K): wall warmer or colder than ullage  as is
+ dT_vi_signed     tanh((T_v - T_sat) / 1 K): superheated or subcooled ullage  as is
+ fill             H_l / H, the level's share of the tank's height             as is
 ================  ==========================================================  ==============
+
+The paper's ``ln(|Gr| + 1)`` inputs carry the size of a temperature difference, not its sign:
+they cannot tell a warm ullage over a cold wall from a cold one under a warm wall, which
+convect differently. The signed inputs (tankode's) say which side is warmer.
 
 ``|dT|`` is smoothed as ``sqrt(dT^2 + (0.05 K)^2)``: with ``g beta R^3/nu^2`` ~ 1e13 per kelvin
 for LH2, the raw ``ln(|Gr| + 1)`` climbs from 0 to 16 within a microkelvin of ``dT = 0`` with an
@@ -28,7 +35,7 @@ case 1, where wall, vapour and liquid end within 0.2 K). 0.05 K is below the sen
 so nothing measurable is lost. The sign of ``lnGr_li_signed`` is smoothed the same way
 (``tanh(dT / 0.05 K)``).
 
-``f_over_f11`` is ours (the issue's "one more feature"): the wave a given forcing raises
+``f_over_f11`` is tankode's (not in the paper): the wave a given forcing raises
 depends on how close ``f_e`` is to the tank's first natural frequency ``f_11`` (which moves
 with the fill level), which ``Re`` alone cannot tell.
 
@@ -43,24 +50,28 @@ two things the interface heat transfer depends on:
   conduction only) or unstably (warmer: natural convection): ``lnGr_vl`` measures the
   vapour-liquid difference, not the liquid's position relative to ``T_sat``.
 
-``experiments/closure_inputs.py`` fits the MLP directly to the reference coefficients along
-the true trajectories of the training cases (weight decay 1e-3) and scores its whole-hour
-prediction of case 5, which it has not seen (J as in the multi-environment study, noise floor
-2.5). Trained on cases 2 + 3 + 4: default 19.5, extended 4.8 (either new feature alone: 32.8
-and 261). Trained on case 1 alone every set gives 43 to 45. But learned by assimilation
-(fixed 10-minute windows, ``experiments/README.md``) the extended agent did worse than the
-default on every measure we took (case 1 final-agent pressure RMSE 2.82 against 2.15 noise
-std; case 5 J of A1 / A23 / A234 70 / 4598 / 819 against 49.6 / 384 / 5113), so the default
-stays the paper's.
+Fitted directly to the reference coefficients along the true trajectories of the training
+cases, the extended inputs predict an unseen case far better than the default ones; learned
+by assimilation (fixed 10-minute windows) the extended agent does worse than the default on
+every measure of the studies (``experiments/README.md``), so the default stays the paper's.
 
 The scalings bring every feature to O(1) for LH2 tanks of metres; they are fixed constants
 (not fitted), so a model trained on one tank applies unchanged to another.
 
-Outputs: ``h_j = h_ref,j * exp(span * tanh(o_j))``, positive and bounded in
-``[h_ref/e^span, h_ref e^span]`` whatever the weights; the last layer starts at zero so an
-untrained agent returns ``h_ref`` (a sane, mid-range closure) and the first ODE of training
-never blows up. Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 500 with the
-extended inputs.
+Outputs: ``h_j = base_j(s) * exp(span * tanh(o_j))``, a learned factor on a base closure,
+positive and bounded in ``[base/e^span, base e^span]`` whatever the weights; the last layer
+starts at zero so an untrained agent *is* its base closure and the first ODE of training never
+blows up. The base (``MLPConfig.base``):
+
+* ``"natural"``: ``tankode.closures.natural.NaturalConvectionClosure``, textbook convection on
+  each surface from its own temperature difference, plus a sloshing term: the untrained agent is
+  a physical closure, and training learns corrections to it (a residual model, as universal
+  differential equations build them);
+* ``"reference"``: the paper's correlations (``ReferenceClosure``);
+* ``"constant"``: the fixed mid-range coefficients ``h_ref_W_m2K`` (the paper's agent, which
+  learns the coefficients' levels and shapes from nothing).
+
+Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 500 with the extended inputs.
 """
 
 from __future__ import annotations
@@ -76,6 +87,7 @@ from .reference import first_slosh_frequency_Hz, wave_height_m
 
 DT_SMOOTH_K = 0.05  # temperature differences are resolved down to this (module docstring)
 WAVE_DAMPING = 0.1  # modal damping ratio of the lnRe_wave estimate (module docstring)
+SIGNED_SCALE_K = 1.0  # K; the signed differences saturate beyond a few kelvin (module docstring)
 _PAPER_SEVEN = ("Pr_v", "Pr_l", "R_over_H", "Re_1e4", "lnGr_wv", "lnGr_wl", "lnGr_vl")
 FEATURE_NAMES = (*_PAPER_SEVEN, "f_over_f11")  # the default: eight inputs, 484 weights (paper)
 EXTENDED_FEATURES = (*_PAPER_SEVEN, "lnRe_wave", "lnGr_li_signed")  # nine inputs, 500 weights (docstring)
@@ -97,6 +109,8 @@ class MLPConfig:
             rest to moderately sloshing.
         span: half-width of the output range in natural-log units (4.6 = factor 100 each way).
         seed: weight initialisation seed.
+        base: the closure the learned factor multiplies (module docstring): ``"natural"``,
+            ``"reference"`` or ``"constant"`` (``h_ref_W_m2K``; the only use of that field).
     """
 
     features: tuple[str, ...] = FEATURE_NAMES
@@ -104,6 +118,7 @@ class MLPConfig:
     h_ref_W_m2K: tuple[float, float, float, float] = (3.0, 10.0, 60.0, 100.0)
     span: float = math.log(100.0)
     seed: int = 0
+    base: str = "constant"
 
     def __post_init__(self):
         unknown = [f for f in self.features if f not in _FEATURES]
@@ -116,6 +131,8 @@ class MLPConfig:
             raise ValueError(f"MLPConfig.h_ref_W_m2K must be 4 positive values in W/(m^2 K), got {self.h_ref_W_m2K}")
         if not (0 < self.span <= 10):
             raise ValueError(f"MLPConfig.span must be in (0, 10] (log units), got {self.span}")
+        if self.base not in BASES:
+            raise ValueError(f"MLPConfig.base must be one of {BASES}, got {self.base!r}")
 
 
 def _ln_gr(beta: Tensor, dT: Tensor, nu: Tensor, R: Tensor) -> Tensor:
@@ -152,6 +169,9 @@ _FEATURES = {
     "lnRe_wave": _re_wave,
     "lnGr_li_signed": _gr_li_signed,
     "f_over_f11": lambda x: x.slosh_frequency_Hz / first_slosh_frequency_Hz(x.radius_m, x.H_l_m),
+    "dT_wv_signed": lambda x: torch.tanh((x.T_w_K - x.T_v_K) / SIGNED_SCALE_K),
+    "dT_vi_signed": lambda x: torch.tanh((x.T_v_K - x.T_sat_K) / SIGNED_SCALE_K),
+    "fill": lambda x: x.H_l_m * x.aspect_ratio / x.radius_m,
 }
 
 
@@ -160,8 +180,18 @@ def mlp_features(x: ClosureInputs, names: tuple[str, ...] = FEATURE_NAMES) -> Te
     return torch.stack([_FEATURES[n](x) for n in names], dim=-1)
 
 
+BASES = ("natural", "reference", "constant")  # MLPConfig.base (module docstring)
+
+
+def _base_closure(name: str) -> Closure | None:
+    from .natural import NaturalConvectionClosure
+    from .reference import ReferenceClosure
+
+    return {"natural": NaturalConvectionClosure, "reference": ReferenceClosure}[name]() if name != "constant" else None
+
+
 class MLPClosure(Closure):
-    """theta = h_ref * exp(span * tanh(MLP(features))), see the module docstring."""
+    """theta = base(s) * exp(span * tanh(MLP(features))), see the module docstring."""
 
     def __init__(self, config: MLPConfig = MLPConfig()):
         super().__init__()
@@ -183,18 +213,30 @@ class MLPClosure(Closure):
                 layers.append(nn.Tanh())
         self.net = nn.Sequential(*layers)
         self.register_buffer("log_h_ref", torch.log(torch.tensor(config.h_ref_W_m2K, dtype=torch.float64)))
+        self.base = _base_closure(config.base)
 
-    def log_theta(self, features: Tensor) -> Tensor:
-        """``ln theta`` ``(..., 4)`` from scaled features ``(..., len(config.features))``."""
-        return self.log_h_ref + self.config.span * torch.tanh(self.net(features))
+    def log_base(self, x: ClosureInputs) -> Tensor:
+        """``ln`` of the base coefficients ``(env, 4)`` at ``x`` (the untrained agent's closure)."""
+        if self.base is None:
+            return self.log_h_ref.expand(*x.T_v_K.shape, 4)
+        return torch.log(self.base(x))
+
+    def log_theta(self, features: Tensor, log_base: Tensor | None = None) -> Tensor:
+        """``ln theta`` ``(..., 4)`` from scaled features ``(..., len(config.features))`` and the base's
+        ``ln h`` at the same states (``log_base``; None for the constant base, whose is ``ln h_ref``)."""
+        if log_base is None:
+            if self.base is not None:
+                raise ValueError(f"an agent on the {self.config.base!r} base needs log_base (its ln h at the states)")
+            log_base = self.log_h_ref
+        return log_base + self.config.span * torch.tanh(self.net(features))
 
     def forward(self, x: ClosureInputs) -> Tensor:
-        return torch.exp(self.log_theta(mlp_features(x, self.config.features)))
+        return torch.exp(self.log_theta(mlp_features(x, self.config.features), self.log_base(x)))
 
-    def output_position(self, theta: Tensor) -> Tensor:
-        """``tanh(o)`` ``(..., 4)`` of coefficients ``theta`` (W/(m^2 K)) this agent gave: -1 and +1
-        are its output bounds ``h_ref e^-span`` and ``h_ref e^span``, where the slope vanishes."""
-        return (torch.log(theta) - self.log_h_ref) / self.config.span
+    def output_position(self, x: ClosureInputs) -> Tensor:
+        """``tanh(o)`` ``(env, 4)`` at ``x``: -1 and +1 are the output bounds ``base e^-span`` and
+        ``base e^span``, where the slope vanishes."""
+        return torch.tanh(self.net(mlp_features(x, self.config.features)))
 
 
-__all__ = ["MLPClosure", "MLPConfig", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]
+__all__ = ["MLPClosure", "MLPConfig", "BASES", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]

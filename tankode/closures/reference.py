@@ -25,7 +25,7 @@ For each side ``x`` in {vapour, liquid} of the interface (length scale ``R``, th
   (fog), which the 0D model does not represent; convecting it onto the wall through
   ``h_wv = 20 h_vi`` made the synthetic truth stiff and unphysical.
 
-Departure from the printed correlation (the issue "Closure" point): with the raw ``Re_s``
+Departure from the printed correlation: with the raw ``Re_s``
 moderate sloshing in case 1 (``Re_s`` ~ 5e5) gives ``h_li`` of order 1e4 W/(m^2 K), i.e. about
 1 kg/s of condensation in a 5.6 m^3 tank, which empties the ullage in seconds and contradicts
 the behaviour the paper describes. We normalise ``Re_s`` by ``Re_ref = 4000`` as in Ludwig &

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fleet import Fleet
+from ..run import NOISE_KEYS, OBS_CHANNELS
 from ..schedule import INPUT_NAMES
 
-CHANNELS = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
-_NOISE_KEYS = ("p_v", "T_v", "T_l", "T_w", "H_l")
+CHANNELS = OBS_CHANNELS
 _I = {n: i for i, n in enumerate(INPUT_NAMES)}
 
 # Operating phases, in the order that decides a sample with several operations at once: a
@@ -66,7 +66,7 @@ class Observed:
             obs = run.observations
             sel = obs.t_s > t0
             y[e, np.searchsorted(t, obs.t_s[sel])] = obs.values[sel]
-            for c, key in enumerate(_NOISE_KEYS):
+            for c, key in enumerate(NOISE_KEYS):
                 if np.isfinite(y[e, :, c]).any():
                     if key not in run.noise_std or not run.noise_std[key] > 0:
                         raise ValueError(f"run {run.name!r} measures {CHANNELS[c]} but gives no positive "

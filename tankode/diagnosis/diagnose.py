@@ -39,8 +39,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .._threads import single_threaded
+from ..errors import SimulationError
 from ..fleet import Fleet
-from ..integrate import SimulationError
 from ..mechanisms import MECHANISMS
 from .data import CHANNELS, HoldOutTail, LeaveOneRunOut
 from .evidence import Score, bootstrap_gain, information_criteria, score_tests
@@ -82,9 +82,9 @@ class Thresholds:
             fails the rest (an unresolved parameter, too little of the misfit explained, an
             unstable estimate). The data then prefer an explanation the diagnosis cannot pin
             down, and naming the weaker one would be naming the wrong one (10: "very strong"
-            evidence on Kass & Raftery's scale). Found on the MHTB tests started from their
-            samples: a 17.7 kPa pressure sensor bias cleared every threshold while
-            ``dry_wall_node`` fitted better by 62,800 in dBIC with its sheet resistance unresolved.
+            evidence on Kass & Raftery's scale). Example: on the MHTB tests started from their
+            samples a pressure sensor bias clears every threshold while ``dry_wall_node`` fits
+            far better with its sheet resistance unresolved (``experiments/README.md``).
     """
 
     delta_bic: float = -10.0
@@ -104,8 +104,8 @@ class Thresholds:
 # ranked first with the thickness within 9 % but estimate/std 0.5; experiments/README.md); the
 # boundary-layer variants share its parameters' structure, and the wall-fed source of all has no
 # slope at 0, where the score test looks. They are considered when asked for (``candidates``,
-# ``--candidates``), with a fit started from a layer. ``dry_wall_node`` (built for the MHTB tests)
-# joined the defaults in the sixteenth session, once hidden in case 3 and found (tests/test_diagnosis.py).
+# ``--candidates``), with a fit started from a layer. ``dry_wall_node`` is a default candidate: hidden
+# in case 3 it is found (tests/test_diagnosis.py).
 OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
@@ -294,9 +294,10 @@ class _Folds:
 
         evidence = best(self.evidence_mask)
         # With several folds each fold's fit also starts from the all-data estimate. One start is
-        # not enough on real data: on the MHTB tests the dry wall node's fit to P263968K alone
-        # ended at chi2 2049 from the score's one-step estimate and at 83.5 from a start nearer
-        # the all-data estimate, two minima with different closure factors (experiments/README.md).
+        # not enough on real data: on the MHTB tests the dry wall node's fit to one test alone
+        # ends in two minima with different closure factors, the one reached from the score's
+        # one-step estimate far worse than the one reached from near the all-data estimate
+        # (experiments/README.md).
         fold_fits = [evidence] if len(self.folds) == 1 else [best(train, also=evidence.values)
                                                              for train, _ in self.folds]
         self.fold_fits = fold_fits

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..integrate import SimulationError
+from ..errors import SimulationError
 from .fit import Fit, normalised_box
 from .forward import FreeParam, Problem, mechanism_params
 from .residuals import loss_from_terms
@@ -61,9 +61,9 @@ def score_tests(problem: Problem, baseline: Fit, candidates: list[str], train: n
     S = ((R[1:] - r) / (steps / np.array([p.scale for p in mparams]))[:, None]).T  # (n_data, m), per normalised unit
     # Orthonormal basis of the directions the closure can still take (rank-revealing: h_vi may
     # have none). A factor on a bound the data pull it beyond cannot move that way, so it cannot
-    # mimic the mechanism: projecting it out too (as this test did until the eighteenth session)
-    # zeroed the score of whatever resembles it. On the MHTB tests, with every factor at a bound,
-    # that ranked the dry wall node 7th of 12, below the default refits (experiments/README.md).
+    # mimic the mechanism: projecting it out too would zero the score of whatever resembles it
+    # (on the MHTB tests, with every factor at a bound, a whole mechanism would drop out of the
+    # ranking's top; experiments/README.md).
     Sc = baseline.jac[:, baseline.nuisance_free(r)]  # (n_data, n_free)
     Q = np.zeros((len(r), 0))
     if Sc.size:

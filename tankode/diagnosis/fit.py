@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..integrate import SimulationError
+from ..errors import SimulationError
 from .forward import FreeParam, Problem
 
 # Residual of a trial point the solver could not integrate: large enough that the trust

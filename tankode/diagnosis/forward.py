@@ -14,7 +14,7 @@ from ..closures import ReferenceClosure, ScaledClosure
 from ..fleet import Fleet
 from ..geometry import stack_geometries
 from ..mechanisms import MECHANISMS, Mechanism, make_mechanism
-from ..simulate import simulate
+from ..simulation import simulate
 from ..solver import LSODA
 from .data import Observed
 

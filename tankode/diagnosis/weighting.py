@@ -54,14 +54,14 @@ class ModelError:
     only less. The raised sigma also takes in the signature of a mechanism the baseline lacks,
     and where the baseline's held-out loss in the raised units is at or below the noise floor
     the diagnosis' ``explained`` rule (a share of the excess above that floor) blocks every
-    name, the right ones too. Measured on another simulator's fourteen runs: right on 6 (all
-    four with nothing hidden, 2 of 10 mechanisms) against 5 with the sensor weighting, with one
-    new wrong name; on the MHTB tests no cause, as with the sensor weighting
-    (``experiments/README.md``). Opt-in (``DiagnosisConfig(weighting=ModelError())``).
+    name, the right ones too. How it compares with the sensor weighting on another simulator's
+    runs and on the MHTB tests: ``experiments/README.md``. Opt-in
+    (``DiagnosisConfig(weighting=ModelError())``).
 
     Attributes:
         significance: chance of re-weighting a channel whose residuals are noise (1e-3).
-        rounds: re-weightings at most (2: measured on MHTB, the second moves sigma by < 5 %).
+        rounds: re-weightings at most (2 by default: on the MHTB tests the second already moves
+            no sigma by more than 5 %).
     """
 
     significance: float = 1e-3

@@ -42,11 +42,10 @@ class GrowingLayer(BoundaryLayerStratification):
     it is not; the layer's liquid does not drain back into the bulk; the flow is a vertical
     plate's (see ``boundary_layer_stratification``); no sloshing erosion.
 
-    Measured on MHTB (``experiments/mhtb_fixed_shares.py --layer growing_layer``, thirteenth
-    session): calibrated on the 90 % fill test (c = 5.3e-4, 1/delta_0 = 46) it predicts the 25 %
-    fill test's pressure at 462 Pa, as the layer of fixed thickness does (464 Pa; EBM 388);
-    calibrated on the 25 % fill test the entrainment goes to 0 (the fixed layer, never renewed).
-    The two tests do not tell the two layer laws apart.
+    On the MHTB self-pressurisation tests this layer and the one of fixed thickness predict the
+    held-out test's pressure alike, and calibrated on the low-fill test the entrainment goes to
+    0 (the fixed layer): those tests do not tell the two layer laws apart (figures in
+    ``experiments/README.md``).
     """
 
     id = "growing_layer"

@@ -8,9 +8,10 @@ functions of (u, rho), fitted to CoolProp (``fit_surrogate``) and cached on disk
 
 from .benchmark import benchmark_surrogate
 from .coolprop import CoolPropFluid
-from .surrogate import Domain, PhaseProps, Surrogate, SurrogateConfig, fit_surrogate, load_surrogate
+from .surrogate import (WIDE_CONFIG, Domain, PhaseProps, Surrogate, SurrogateConfig, fit_surrogate, load_surrogate,
+                        surrogate_covering, wide_domain)
 
 __all__ = [
     "CoolPropFluid", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate",
-    "benchmark_surrogate",
+    "benchmark_surrogate", "surrogate_covering", "wide_domain", "WIDE_CONFIG",
 ]

@@ -85,6 +85,10 @@ class Domain:
     metastable_K: float = 1.8
     # Fluid whose triple/critical points bound the fields (validation only).
     fluid_name: str = "ParaHydrogen"
+    # Share of T_crit - T_sat(p) the margin may not exceed (0: the margin is metastable_K at every
+    # pressure). The single-phase branches end closer to saturation as the critical point nears:
+    # a domain reaching it needs a margin that narrows there but stays wide at low pressure.
+    metastable_share: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -110,15 +114,22 @@ class Domain:
                 f"(below the {name} critical pressure, where saturation exists), got {self.p_max_Pa}"
             )
         T_sat_lo, T_sat_hi = _T_sat(name, float(self.p_min_Pa)), _T_sat(name, float(self.p_max_Pa))
-        if not T_sat_hi + self.metastable_K < lim["T_crit"]:
+        if not T_sat_hi + (0.0 if self.metastable_share else self.metastable_K) < lim["T_crit"]:
             raise ValueError(
                 f"Domain.p_max_Pa / metastable_K: T_sat(p_max)={T_sat_hi:.4f} K plus metastable_K must stay "
                 f"below the {name} critical temperature {lim['T_crit']:.4f} K"
             )
+        if not 0.0 <= self.metastable_share < 1.0:
+            raise ValueError(f"Domain.metastable_share must be in [0, 1), got {self.metastable_share}")
         # The metastable branches end at the spinodals, closest to saturation at high pressure.
         m_max = min(_max_metastable_K(name, float(self.p_max_Pa)), _max_metastable_K(name, float(self.p_min_Pa)))
         m_max = math.floor(m_max * 100.0) / 100.0
-        if self.metastable_K > m_max:
+        if self.metastable_share > 0:
+            at_p_max = min(self.metastable_K, self.metastable_share * (lim["T_crit"] - T_sat_hi))
+            if at_p_max > m_max:
+                raise ValueError(f"Domain.metastable_share: the margin at p_max_Pa={self.p_max_Pa:.6g} is "
+                                 f"{at_p_max:.3g} K, beyond the {m_max:.2f} K where {name}'s single-phase branch ends")
+        elif self.metastable_K > m_max:
             raise ValueError(
                 f"Domain.metastable_K must be in [0, {m_max:.2f}] K for p_max_Pa={self.p_max_Pa:.6g} "
                 f"(beyond, CoolProp's {name} single-phase branch ends: spinodal), got {self.metastable_K}"
@@ -134,15 +145,25 @@ class Domain:
                 f"the {name} EOS range), got {self.T_v_max_K}"
             )
 
+    def margin_K(self, T_sat_K):
+        """The metastable margin (K) at saturation temperature ``T_sat_K`` (numpy or torch, or a float)."""
+        if not self.metastable_share:
+            return self.metastable_K
+        gap = self.metastable_share * (_fluid_limits(self.fluid_name)["T_crit"] - T_sat_K)
+        if hasattr(gap, "clamp"):  # a torch tensor
+            return gap.clamp(max=self.metastable_K)
+        return np.minimum(self.metastable_K, gap)
+
     def T_bounds(self, phase: str, T_sat_K):
         """Temperature bounds (K) of ``phase`` at pressures whose saturation temperature is ``T_sat_K``.
 
         Works on numpy arrays and torch tensors alike; returns ``(T_lo, T_hi)``.
         """
+        m = self.margin_K(T_sat_K)
         if phase == "vapor":
-            return T_sat_K - self.metastable_K, T_sat_K * 0.0 + self.T_v_max_K
+            return T_sat_K - m, T_sat_K * 0.0 + self.T_v_max_K
         if phase == "liquid":
-            return T_sat_K * 0.0 + self.T_l_min_K, T_sat_K + self.metastable_K
+            return T_sat_K * 0.0 + self.T_l_min_K, T_sat_K + m
         raise ValueError(f"phase must be 'vapor' or 'liquid', got {phase!r}")
 
     def sample_pT(self, phase: str, p_frac, s_frac, T_sat_of_p) -> tuple[np.ndarray, np.ndarray]:
@@ -161,4 +182,50 @@ class Domain:
         return asdict(self)
 
 
-__all__ = ["Domain"]
+
+
+# The wide tier, as fractions of the fluid's critical point: ParaHydrogen 0.32 to 11.1 bar and
+# vapour up to 82 K, beyond the pressures of any storage tank's relief setting and below the
+# critical region, where the liquid's metastable branch (and so the margin) shrinks to nothing.
+WIDE_P_MIN_OF_CRIT = 0.025
+WIDE_P_MAX_OF_CRIT = 0.86
+WIDE_T_V_MAX_OF_CRIT = 2.5
+
+
+def wide_domain(fluid_name: str = "ParaHydrogen") -> Domain:
+    """The widest domain tankode fits for ``fluid_name`` (constants above).
+
+    The metastable margin is the default's (1.8 K) where the fluid allows it and narrows towards
+    the critical point: 70 % of the smallest share of ``T_crit - T_sat`` that the spinodals leave
+    over the domain's pressures (ParaHydrogen: 0.17, so 1.8 K up to 2.5 bar, 0.18 K at 11 bar;
+    CoolProp's density solver fails nearer the spinodal than its branch test says).
+    """
+    lim = _fluid_limits(fluid_name)
+    p_min = max(WIDE_P_MIN_OF_CRIT * lim["p_crit"], 2.0 * lim["p_triple"])
+    p_max = WIDE_P_MAX_OF_CRIT * lim["p_crit"]
+    shares = [_max_metastable_K(fluid_name, float(p)) / (lim["T_crit"] - _T_sat(fluid_name, float(p)))
+              for p in np.linspace(p_min, p_max, 8)]
+    T_l_min = lim["T_triple"] + 0.4 * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"])
+    return Domain(p_min_Pa=p_min, p_max_Pa=p_max, T_v_max_K=min(WIDE_T_V_MAX_OF_CRIT * lim["T_crit"], lim["T_max"]),
+                  T_l_min_K=T_l_min, metastable_K=Domain.metastable_K, fluid_name=fluid_name,
+                  metastable_share=math.floor(0.7 * min(shares) * 1000.0) / 1000.0)
+
+
+def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05) -> bool:
+    """Whether ``domain`` holds the pressures and temperatures a run reaches, with room to spare.
+
+    ``p_Pa``, ``T_v_K``, ``T_l_K``: the values seen (measured or initial), any iterables; NaN
+    are ignored. The room is ``share`` of the domain's pressure range at each end, the same
+    share of the vapour's temperature range below ``T_v_max_K`` and 0.5 K above ``T_l_min_K``.
+    """
+    p = np.asarray([x for x in np.ravel(np.asarray(p_Pa, float)) if np.isfinite(x)])
+    Tv = np.asarray([x for x in np.ravel(np.asarray(T_v_K, float)) if np.isfinite(x)])
+    Tl = np.asarray([x for x in np.ravel(np.asarray(T_l_K, float)) if np.isfinite(x)])
+    dp = share * (domain.p_max_Pa - domain.p_min_Pa)
+    ok = p.size == 0 or (p.min() >= domain.p_min_Pa + dp and p.max() <= domain.p_max_Pa - dp)
+    ok &= Tv.size == 0 or Tv.max() <= domain.T_v_max_K - share * (domain.T_v_max_K - domain.T_l_min_K)
+    ok &= Tl.size == 0 or Tl.min() >= domain.T_l_min_K + 0.5
+    return bool(ok)
+
+
+__all__ = ["Domain", "wide_domain", "covers"]

@@ -190,7 +190,15 @@ def _fit(fluid_name: str, domain: Domain, config: SurrogateConfig) -> Surrogate:
     pr = PengRobinson.from_fluid(fluid)
     p_lo = domain.p_min_Pa * (1.0 - _SAT_MARGIN)
     p_hi = min(domain.p_max_Pa * (1.0 + _SAT_MARGIN), 0.5 * (domain.p_max_Pa + fluid.p_crit_Pa))
-    sat, sat_info = fit_saturation(fluid, p_lo, p_hi, config.sat_degree, config.n_sat)
+    # A wide pressure range (T_sat is log-like at low pressure) needs a higher degree than the
+    # default domain's; raise it until the fit meets its 1e-4 tolerance.
+    for degree in sorted({config.sat_degree, 16, 20} - set(range(config.sat_degree))):
+        try:
+            sat, sat_info = fit_saturation(fluid, p_lo, p_hi, degree, max(config.n_sat, 2 * (degree + 1)))
+            break
+        except RuntimeError:
+            if degree == 20:
+                raise
     phases, records = {}, {}
     for phase in PHASES:
         phases[phase], records[phase] = _fit_phase(fluid, domain, config, phase, pr, sat)

@@ -185,6 +185,20 @@ class Surrogate(nn.Module):
             inside &= torch.isfinite(pp.p) & torch.isfinite(pp.T)
         return inside
 
+    def far_outside(self, phase: str, p: Tensor, T: Tensor, T_sat: Tensor, slack: float = 0.02,
+                    slack_K: float = 0.5) -> Tensor:
+        """Where a phase's (p, T) lies well beyond the fitted domain (bool, NaN counts as outside).
+
+        ``slack`` is a share of the domain's pressure range and ``slack_K`` a temperature margin
+        beyond the phase's band: states this far out are extrapolation that no step should
+        take, unlike the small excursions of a solver's trial stages, which ``contains`` judges.
+        """
+        d = self.domain
+        dp = slack * (d.p_max_Pa - d.p_min_Pa)
+        lo, hi = d.T_bounds(phase, T_sat)
+        inside = (p >= d.p_min_Pa - dp) & (p <= d.p_max_Pa + dp) & (T >= lo - slack_K) & (T <= hi + slack_K)
+        return ~inside
+
     # ---- serialisation (plain tensors and python values; loaded with weights_only=True) ----
 
     def state(self) -> dict:

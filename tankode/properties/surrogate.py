@@ -6,10 +6,11 @@ Peng-Robinson pressure and first-order Taylor temperature corrected by RBF inter
 min-max scaled (u, rho), one per phase).
 """
 
-from .cache import load_surrogate
+from .cache import WIDE_CONFIG, load_surrogate, surrogate_covering
 from .config import SurrogateConfig
-from .domain import Domain
+from .domain import Domain, wide_domain
 from .fit import fit_surrogate
 from .model import PhaseProps, Surrogate
 
-__all__ = ["Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate"]
+__all__ = ["WIDE_CONFIG", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate", "surrogate_covering",
+           "wide_domain"]

@@ -9,14 +9,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ._threads import single_threaded
 from .closures import Closure, ReferenceClosure
+from .errors import ImpossibleState, SimulationError, StateLeftDomain
 from .fleet import Fleet
-from .integrate import IntegrationStats, SimulationError, integrate, state_scale
+from .integrate import IntegrationStats, integrate, state_scale
 from .model import TankModel
+from .properties import WIDE_CONFIG, load_surrogate, wide_domain
+from .run import OBS_CHANNELS as OBS_NAMES
 from .solver import LSODA, AdaptiveRK, NoGradient
-
-OBS_NAMES = ("p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m")
+from .threads import single_threaded
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,8 @@ class Solution:
         stats: right-hand-side evaluations and segments.
         wall_time_s: wall-clock time of the integration (s).
         notes: what the simulation assumed (e.g. an estimated wall heat capacity).
+        wall_heat_capacity_J_per_K: m_w c_w used for each environment (J/K): the run's, or
+            the estimate where the run gives none.
     """
 
     t_s: Tensor
@@ -41,6 +44,7 @@ class Solution:
     stats: IntegrationStats
     wall_time_s: float
     notes: tuple[str, ...] = field(default=())
+    wall_heat_capacity_J_per_K: tuple[float, ...] = field(default=())
 
     @property
     def real_time_factor(self) -> float:
@@ -92,24 +96,83 @@ def simulate(
         A ``Solution``.
 
     Raises:
-        SimulationError: the solver failed (message names the time and state) or the state
-            left the surrogate domain.
+        SimulationError: the solver failed or the tank reached a state it cannot go on from (an
+            empty ullage, a dry tank): the message names the run, the cause, the time and the
+            state. A trajectory that leaves the default property domain is simulated again on
+            the wide one (``tankode.properties.wide_domain``, with a note); beyond that,
+            ``StateLeftDomain``.
     """
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
     closure = ReferenceClosure() if closure is None else closure
+    notes = ()
+    try:
+        states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
+    except StateLeftDomain as err:
+        # A run that leaves the default domain gets the wide one (the trajectory is not known
+        # before it is simulated); one given a surrogate, or already on the wide one, does not.
+        wide = wide_domain(fleet.fluid.fluid_name)
+        if surrogate is not None or isinstance(runs, Fleet) or fleet.fluid.domain == wide:
+            raise
+        fleet = Fleet.from_runs(runs, load_surrogate(fleet.fluid.fluid_name, wide, WIDE_CONFIG))
+        notes = (f"the trajectory left the default property domain at t = {err.t_s:.6g} s; simulated on the wide "
+                 f"one ({wide.p_min_Pa:.4g} to {wide.p_max_Pa:.4g} Pa)",)
+        states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
+    notes += tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(fleet.runs, fleet.walls) if w.assumed)
+    return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))
+
+
+def _run(fleet: Fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain):
+    """(states, observations, t_out, stats, wall time) of one simulation of ``fleet``; errors named with their run."""
     model = TankModel(fleet.fluid, fleet.geometry, closure, fleet.wall_heat_capacity_J_per_K, mechanisms)
     s0 = model.initial_state(fleet.initial_state(model.mechanisms))  # (env, n_state)
     t_out = output_times(fleet, output_dt_s, t_eval)
     start = time.perf_counter()
-    states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out, state_scale(s0, fleet.geometry.volume_m3, model.extra_state_scales),
-                              solver, NoGradient())
+    try:
+        states, stats = integrate(model, s0, fleet.segments(fleet.t0_s, fleet.t_end_s), fleet.forcing, t_out,
+                                  state_scale(s0, fleet.geometry.volume_m3, model.extra_state_scales), solver,
+                                  NoGradient())
+    except SimulationError as err:
+        raise in_context(err, fleet) from err
     wall = time.perf_counter() - start
     with torch.no_grad():
         obs = model.observe(states)
     if check_domain:
         _check_domain(fleet, t_out, states, model.state_names)
-    notes = tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(fleet.runs, fleet.walls) if w.assumed)
-    return Solution(t_out, states, obs, "success", stats, wall, notes)
+    return states, obs, t_out, stats, wall
+
+
+def in_context(err: SimulationError, fleet: Fleet) -> SimulationError:
+    """``err`` with the run it happened in and, for an impossible state, what the run did to get there."""
+    cause = err.__cause__
+    if not isinstance(cause, ImpossibleState) or err.t_s is None:
+        return err
+    run = fleet.runs[cause.env]
+    u = run.inputs.as_dict(err.t_s)
+    context = []
+    if cause.kind == "ullage":
+        if run.initial.fill_ratio > 0.95:
+            context.append(f"the run starts {run.initial.fill_ratio:g} full, which leaves almost no vapour")
+        for name, what in (("mdot_l_in_kg_s", "liquid inflow"), ("mdot_v_out_kg_s", "vent")):
+            if u[name] > 0:
+                context.append(f"its {what} is {u[name]:g} kg/s")
+    elif cause.kind == "dry":
+        if u["mdot_l_out_kg_s"] > 0:
+            context.append(f"its drain of {u['mdot_l_out_kg_s']:g} kg/s emptied it")
+    elif cause.kind == "wall":
+        context.append(f"its ambient heat Q_aw_W is {u['Q_aw_W']:g} W")
+    elif cause.kind == "domain":
+        if err.state is not None:
+            V_v, V_l = (float(x) for x in err.state.reshape(-1, err.state.shape[-1])[cause.env, 5:7])
+            share = V_v / (V_v + V_l)
+            if share < 0.02:
+                context.append(f"the ullage is nearly gone ({share:.2%} of the tank): the liquid fills the tank")
+            elif share > 0.98:
+                context.append(f"the tank is nearly dry ({1 - share:.2%} of it liquid)")
+        if u["mdot_v_in_kg_s"] > 0:
+            context.append(f"its vapour inflow is {u['mdot_v_in_kg_s']:g} kg/s")
+    message = f"run {run.name!r}: {cause.cause}" + (f" ({'; '.join(context)})" if context else "")
+    out = type(err)(message, err.t_s, err.state)
+    return out
 
 
 def _check_domain(fleet: Fleet, t: Tensor, states: Tensor, names: tuple[str, ...]) -> None:
@@ -123,9 +186,13 @@ def _check_domain(fleet: Fleet, t: Tensor, states: Tensor, names: tuple[str, ...
         inside = fleet.fluid.contains(phase, u, rho) | past_end
         if not bool(inside.all()):
             env, k = (~inside).nonzero()[0].tolist()
-            raise SimulationError(
-                f"run {fleet.runs[env].name!r}: the {phase} state left the property surrogate's fitted domain "
-                f"({fleet.fluid.domain}); widen the Domain (tankode.properties.Domain) and refit",
+            d = fleet.fluid.domain
+            props = fleet.fluid.props(phase, u[env, k], rho[env, k])
+            raise StateLeftDomain(
+                f"run {fleet.runs[env].name!r}: the {phase} state left the property surrogate's fitted domain at "
+                f"p = {float(props.p):.4g} Pa, T = {float(props.T):.4g} K (saturation {float(props.T_sat):.4g} K; "
+                f"the domain: {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa, the vapour up to {d.T_v_max_K:.4g} K, "
+                f"{float(d.margin_K(props.T_sat)):.2g} K past saturation on either side there)",
                 float(t[k]), states[env, k][None], names,
             )
 

@@ -1,0 +1,207 @@
+"""Hostile input and misuse: no data lost, no traceback, no spin, causes named, exact round trips."""
+
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tankode.cli import main
+from tankode.run_io import read_run
+
+from mhtb_data import MHTB, needs_mhtb
+
+
+@pytest.fixture(scope="module")
+def case3(tmp_path_factory):
+    """A clean simulated copy of case 3 on disk: (json path, its folder)."""
+    d = tmp_path_factory.mktemp("case3")
+    assert main(["simulate", "case3", "--out", str(d)]) == 0
+    return d / "case3.json"
+
+
+def _variant(src: Path, dst: Path, meta=None, column=None) -> Path:
+    """A copy of the run ``src`` in ``dst`` with metadata edits and one input column set from t = 0."""
+    dst.mkdir(parents=True, exist_ok=True)
+    d = json.loads(src.read_text())
+    for key, value in (meta or {}).items():
+        obj = d
+        *path, last = key.split(".")
+        for k in path:
+            obj = obj[k]
+        obj[last] = value
+    (dst / src.name).write_text(json.dumps(d))
+    lines = (src.parent / d["timeseries"]).read_text().splitlines()
+    if column is not None:
+        name, value = column
+        header = lines[0].split(",")
+        if name not in header:
+            header.append(name)
+            lines = [",".join(header)] + [row + "," for row in lines[1:]]
+        i = header.index(name)
+        rows = [row.split(",") for row in lines[1:]]
+        for row in rows:
+            row[i] = repr(float(value))
+        lines = [lines[0]] + [",".join(r) for r in rows]
+    (dst / d["timeseries"]).write_text("\n".join(lines) + "\n")
+    return dst / src.name
+
+
+def _error(capsys, argv) -> str:
+    """Run the CLI, expect exit code 2 and exactly one line on stderr; return that line."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "Traceback" not in err[0]
+    return err[0]
+
+
+# ------------------------------------------------------------------ outputs never replace inputs
+def test_simulate_and_predict_refuse_to_write_over_their_input(case3, tmp_path, capsys):
+    run = _variant(case3, tmp_path / "x")
+    before = run.read_bytes(), (tmp_path / "x" / "case3.csv").read_bytes()
+    assert "outputs never replace inputs" in _error(capsys, ["simulate", str(run), "--out", str(tmp_path / "x")])
+    model = tmp_path / "model"
+    assert main(["assimilate", str(run), "--out", str(model), "--iters", "1", "--window", "3600", "--quiet"]) == 0
+    capsys.readouterr()
+    assert "outputs never replace inputs" in _error(capsys, ["predict", str(model), str(run), "--out", str(tmp_path / "x")])
+    assert "outputs never replace inputs" in _error(capsys, ["predict", str(model), str(run), "--out", str(model)])
+    assert (run.read_bytes(), (tmp_path / "x" / "case3.csv").read_bytes()) == before
+
+
+@needs_mhtb
+def test_a_folder_of_measured_runs_or_a_read_only_one_is_never_written(tmp_path, capsys):
+    data = tmp_path / "data"
+    shutil.copytree(MHTB, data)
+    for p in data.iterdir():
+        p.chmod(stat.S_IRUSR | stat.S_IWUSR)
+    data.chmod(stat.S_IRWXU)
+    run = str(MHTB / "P263981D.json")
+    assert "tankode did not write" in _error(capsys, ["simulate", run, "--out", str(data)])
+    data.chmod(stat.S_IRUSR | stat.S_IXUSR)  # marked read-only, as the shared data folder is
+    try:
+        assert "marked read-only" in _error(capsys, ["simulate", run, "--out", str(data / "sub")])
+    finally:
+        data.chmod(stat.S_IRWXU)
+    assert not (data / "sub").exists()
+
+
+def test_out_naming_a_file_and_a_folder_given_as_the_run(case3, tmp_path, capsys):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    assert "is an existing file" in _error(capsys, ["simulate", "case3", "--out", str(f)])
+    assert "is a directory" in _error(capsys, ["simulate", str(case3.parent), "--out", str(tmp_path / "o")])
+    assert "neither a case" in _error(capsys, ["simulate", str(tmp_path / "missing.json"), "--out", str(tmp_path / "o")])
+
+
+# ------------------------------------------------------------------ refused pickles, resume
+def test_refused_pickles_are_one_line_errors_without_the_unsafe_hint(case3, tmp_path, capsys):
+    import pickle
+
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "model.json").write_text(json.dumps({"format": "tankode-model-1", "fluid": "ParaHydrogen",
+                                                  "closure": {"type": "ReferenceClosure", "config": {}}}))
+    (model / "weights.pt").write_bytes(pickle.dumps({"w": os.getcwd}))
+    line = _error(capsys, ["predict", str(model), str(case3), "--out", str(tmp_path / "p")])
+    assert "refused to load" in line and "weights_only=False" not in line
+    out = tmp_path / "agent"
+    out.mkdir()
+    (out / "checkpoint.pt").write_bytes(pickle.dumps({"w": os.getcwd}))
+    line = _error(capsys, ["assimilate", str(case3), "--out", str(out), "--resume", "--quiet"])
+    assert "refused to load" in line and "weights_only=False" not in line
+
+
+def test_resume_without_a_checkpoint_is_an_error(case3, tmp_path, capsys):
+    assert "no checkpoint to resume" in _error(capsys, ["assimilate", str(case3), "--out", str(tmp_path / "a"),
+                                                        "--resume", "--quiet"])
+
+
+# ------------------------------------------------------------------ causes named, before any spin
+@pytest.mark.parametrize("meta, column, words", [
+    ({"initial.p_v_Pa": 30e5, "initial.T_l_K": 51.0}, None, "critical pressure"),
+    ({"initial.T_l_K": 51.0}, None, "above the critical temperature"),
+    ({}, ("slosh_amplitude_m", 5.0), "not smaller than the tank radius"),
+    ({"timeseries": "/etc/passwd"}, None, "must lie beside the JSON file"),
+])
+def test_impossible_runs_are_refused_with_their_cause(case3, tmp_path, capsys, meta, column, words):
+    if column and column[0] == "slosh_amplitude_m":
+        run = _variant(case3, tmp_path / "v", meta, column)
+        run = _variant(run, tmp_path / "w", {}, ("slosh_frequency_Hz", 0.5))
+    else:
+        run = _variant(case3, tmp_path / "v", meta, column)
+    line = _error(capsys, ["simulate", str(run), "--out", str(tmp_path / "o")])
+    assert words in line
+    assert "root:" not in line  # nothing of a foreign file is echoed
+
+
+# ------------------------------------------------------------------ round trips
+def test_a_simulated_copy_round_trips_exactly(tmp_path):
+    assert main(["simulate", "case3", "--out", str(tmp_path / "a")]) == 0
+    assert main(["simulate", str(tmp_path / "a" / "case3.json"), "--out", str(tmp_path / "b")]) == 0
+    assert main(["simulate", str(tmp_path / "b" / "case3.json"), "--out", str(tmp_path / "c")]) == 0
+    assert (tmp_path / "b" / "case3.json").read_text() == (tmp_path / "c" / "case3.json").read_text()
+    assert (tmp_path / "b" / "case3.csv").read_text() == (tmp_path / "c" / "case3.csv").read_text()
+    a, c = read_run(tmp_path / "a" / "case3.json"), read_run(tmp_path / "c" / "case3.json")
+    assert (a.t0_s, a.t_end_s) == (c.t0_s, c.t_end_s)
+
+
+def test_a_run_that_starts_late_keeps_its_span(case3, tmp_path):
+    d = json.loads(case3.read_text())
+    lines = (case3.parent / "case3.csv").read_text().splitlines()
+    shifted = [lines[0]] + [",".join([repr(float(r.split(",")[0]) + 100.0)] + r.split(",")[1:]) for r in lines[1:]]
+    (tmp_path / "late").mkdir()
+    (tmp_path / "late" / "case3.csv").write_text("\n".join(shifted) + "\n")
+    (tmp_path / "late" / "case3.json").write_text(json.dumps(d))
+    src = tmp_path / "late" / "case3.json"
+    for k in range(2):
+        assert main(["simulate", str(src), "--out", str(tmp_path / f"s{k}")]) == 0
+        src = tmp_path / f"s{k}" / "case3.json"
+        run = read_run(src)
+        assert (run.t0_s, run.t_end_s) == (100.0, 3700.0)
+
+
+@needs_mhtb
+def test_a_simulated_copy_of_a_measured_run_keeps_its_sensors_noise_and_wall(tmp_path):
+    assert main(["simulate", str(MHTB / "P263968K.json"), "--out", str(tmp_path / "a")]) == 0
+    measured, sim = read_run(MHTB / "P263968K.json"), read_run(tmp_path / "a" / "P263968K.json")
+    assert sim.noise_std == measured.noise_std
+    assert sim.observations.measured_channels == measured.observations.measured_channels
+    assert measured.tank.wall_heat_capacity_J_per_K is None and sim.tank.wall_heat_capacity_J_per_K > 0
+    assert main(["simulate", str(tmp_path / "a" / "P263968K.json"), "--out", str(tmp_path / "b"),
+                 "--noise", "sensors", "--seed", "1"]) == 0
+    noisy = read_run(tmp_path / "b" / "P263968K.json")
+    _, p_clean = sim.observations.channel("p_v_Pa")
+    _, p_noisy = noisy.observations.channel("p_v_Pa")
+    assert np.std(p_noisy - p_clean) == pytest.approx(measured.noise_std["p_v"], rel=0.2)
+
+
+# ------------------------------------------------------------------ the command line itself
+def test_help_answers_without_importing_torch_or_coolprop():
+    code = "import sys, tankode.cli; sys.exit(('torch' in sys.modules) + 2 * ('CoolProp' in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "tankode.cli", "--help"], capture_output=True, text=True)
+    assert done.returncode == 0 and "simulate" in done.stdout
+    assert time.perf_counter() - start < 10  # a bound against hangs, not a timing target
+
+
+def test_cli_choices_match_the_library_tables():
+    from tankode import cli
+    from tankode.closures import INPUT_SETS
+
+    assert set(cli._INPUT_SETS) == set(INPUT_SETS)
+    assert {type(cli._gradient(g)).__name__.lower() for g in cli._GRADIENTS} == set(cli._GRADIENTS)
+
+
+def test_warnings_and_unexpected_errors_are_one_line(capsys):
+    from tankode.cli import describe_error
+
+    assert describe_error(KeyError("x")).startswith("internal error (KeyError")
+    assert "\n" not in describe_error(RuntimeError("a\n  b\n c"))
