@@ -22,7 +22,7 @@ SPEC = NoiseStudySpec(
     name="fixed_windows",
     title="Fixed 10-minute windows (paper 6.1.3)",
     paper="as with growing windows J falls with observation time, but the curves are noisier.",
-    full=AssimilationConfig(window_s=600.0, mode="fixed", iters=20, seed=0),  # the paper's 20 iterations
+    full=AssimilationConfig.paper(window_s=600.0, iters=20, seed=0),  # the paper's 20 iterations
 )
 # -----------------------------------------------------------------------------------------------
 

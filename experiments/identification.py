@@ -40,8 +40,8 @@ from trainers.evaluate import closure_along, identification_error, rmse_by_chann
 CASE = "case1"
 NOISE = "high"
 SEED = 0
-FULL = AssimilationConfig(window_s=600.0, mode="fixed", iters=20, seed=SEED)
-QUICK = AssimilationConfig(window_s=600.0, mode="fixed", iters=3, seed=SEED)
+FULL = AssimilationConfig.paper(window_s=600.0, iters=20, seed=SEED)
+QUICK = AssimilationConfig.paper(window_s=600.0, iters=3, seed=SEED)
 QUICK_DURATION_S = 1200.0  # two windows
 # -----------------------------------------------------------------------------------------------
 

@@ -44,8 +44,7 @@ from trainers.studies import study_args  # noqa: E402
 # ---- configuration ---------------------------------------------------------------------------
 # 30-minute windows: the tests are sampled every 5-30 min (a 10-minute window would often hold
 # one pressure sample); 10 L-BFGS iterations per window.
-CONFIG = AssimilationConfig(window_s=1800.0, mode="fixed", iters=10, integrator="rosenbrock", gradient=Backprop(),
-                            seed=0)
+CONFIG = AssimilationConfig.paper(window_s=1800.0, iters=10, integrator="rosenbrock", gradient=Backprop(), seed=0)
 # A round value between the two tests' separate fits of the shell (about 9 and 10 K/W with the
 # published correlations): it is set from both tests, so the held-out rows are blind to the
 # held-out test through the agent, not through the shell.

@@ -36,10 +36,10 @@ NOISE = "high"
 NOISE_SEED = 0
 AGENT_SEED = 0
 FRACTIONS = (1.0, 0.8, 0.5, 0.2, 0.05)  # 1.0: the full-batch reference, run once
-FULL = AssimilationConfig(window_s=600.0, mode="fixed", iters=20, iters_per_batch=5)
+FULL = AssimilationConfig.paper(window_s=600.0, iters=20, iters_per_batch=5)
 SEEDS = (1, 2, 3)  # repetitions (batch draws); the paper used 100
 TRAIN_DURATION_S = 1200.0  # two windows: rest, then the onset of sloshing
-QUICK = AssimilationConfig(window_s=150.0, mode="fixed", iters=2, iters_per_batch=1)
+QUICK = AssimilationConfig.paper(window_s=150.0, iters=2, iters_per_batch=1)
 QUICK_FRACTIONS = (1.0, 0.5, 0.05)
 QUICK_SEEDS = (1, 2)
 QUICK_TRAIN_DURATION_S = 150.0  # one 2.5-minute window

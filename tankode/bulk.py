@@ -31,6 +31,10 @@ import torch
 from torch import Tensor
 
 
+# Share of the property domain's metastable margin the threshold may take (rates_kg_s).
+MARGIN_SHARE = 2.0 / 3.0
+
+
 @dataclass(frozen=True)
 class BulkPhaseChange:
     """Constants of the bulk relaxation (module docstring); ``None`` in ``TankModel`` turns it off."""
@@ -49,14 +53,25 @@ class BulkPhaseChange:
             if not (math.isfinite(v) and v >= 0) or (name != "threshold_K" and v == 0):
                 raise ValueError(f"BulkPhaseChange.{name} must be finite and > 0 (threshold >= 0), got {v}")
 
-    def rates_kg_s(self, m_v: Tensor, m_l: Tensor, pv, pl) -> tuple[Tensor, Tensor]:
-        """(J_fog, J_flash) in kg/s, each ``(env,)`` and >= 0, from the phases' masses and properties."""
+    def rates_kg_s(self, m_v: Tensor, m_l: Tensor, pv, pl, margin_K=None) -> tuple[Tensor, Tensor]:
+        """(J_fog, J_flash) in kg/s, each ``(env,)`` and >= 0, from the phases' masses and properties.
+
+        ``margin_K``: how far past saturation the phases' branches reach (the property domain's
+        metastable margin, which narrows towards the critical point): the threshold is capped at
+        two thirds of it, so the bulk relaxation starts before a state leaves its branch, and the
+        onset's width shrinks with the threshold, so that a phase at saturation stays untouched
+        (the softplus tail there is ``exp(-threshold_K / width_K)`` of the width whatever the cap).
+        """
         L = pv.h_vsat - pv.h_lsat
-        w = self.width_K
-        fog = w * torch.nn.functional.softplus((pv.T_sat - pv.T - self.threshold_K) / w)
+        if margin_K is None:
+            threshold, w = self.threshold_K, self.width_K
+        else:
+            threshold = torch.clamp(MARGIN_SHARE * margin_K, max=self.threshold_K)
+            w = self.width_K * threshold / self.threshold_K if self.threshold_K > 0 else self.width_K
+        fog = w * torch.nn.functional.softplus((pv.T_sat - pv.T - threshold) / w)
         # Saturation at the ullage's pressure for both: the liquid's own p(u, rho) is steep and
         # only its derivatives drive the model (tankode.model, "Volume split").
-        flash = w * torch.nn.functional.softplus((pl.T - pv.T_sat - self.threshold_K) / w)
+        flash = w * torch.nn.functional.softplus((pl.T - pv.T_sat - threshold) / w)
         return m_v * pv.cp * fog / (L * self.tau_s), m_l * pl.cp * flash / (L * self.tau_s)
 
 

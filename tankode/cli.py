@@ -120,25 +120,39 @@ def cmd_assimilate(args) -> int:
     from trainers.assimilate import AssimilationConfig, Assimilator
     from trainers.memory import MEMORIES
 
+    from trainers.distributed import launch_from_environment
+
     from .run_io import read_run
     from .saved import load_model, save_model
 
+    # Under torchrun (RANK, WORLD_SIZE > 1): one rank of a data-parallel job; rank 0 alone writes.
+    launch = launch_from_environment(args.collective_timeout)
+    writes = launch is None or launch.writes
     read = [read_run(p) for p in args.runs]
     out = check_output_dir(args.out, [f for r in read for f in _input_files(r)]
                            + ([Path(args.init)] if args.init is not None else []))
     checkpoint = out / "checkpoint.pt"
-    if args.resume and not checkpoint.exists():
+    if writes and args.resume and not checkpoint.exists():
         raise FileNotFoundError(f"--resume: there is no checkpoint to resume from ({checkpoint} does not exist)")
-    if checkpoint.exists() and not args.resume:
+    if writes and checkpoint.exists() and not args.resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
     runs = [_initial(r, args.initial) for r in read]
-    # The default gradient follows the integrator: Rosenbrock has no continuous adjoint.
-    gradient = args.gradient or ("backprop" if args.integrator == "rosenbrock" else "adjoint")
-    config = AssimilationConfig(window_s=args.window, mode=args.mode, batch_fraction=args.batch, iters=args.iters,
-                                seed=args.seed, memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas, gradient=_gradient(gradient),
-                                integrator=args.integrator, train_mechanisms=tuple(args.train_mechanisms))
-    out.mkdir(parents=True, exist_ok=True)
+    # Options left out take the configuration's defaults; the gradient follows the integrator
+    # (Rosenbrock has no continuous adjoint).
+    integrator = args.integrator or AssimilationConfig.integrator
+    gradient = _gradient(args.gradient) if args.gradient else (
+        AssimilationConfig.gradient if integrator == AssimilationConfig.integrator
+        else _gradient("backprop" if integrator == "rosenbrock" else "adjoint"))
+    config = AssimilationConfig(window_s=args.window, mode=args.mode or AssimilationConfig.mode,
+                                batch_fraction=args.batch, iters=args.iters, seed=args.seed,
+                                memory=MEMORIES[args.memory](), window_start=args.window_start,
+                                start_prior_sigmas=args.start_prior_sigmas, gradient=gradient, integrator=integrator,
+                                train_mechanisms=tuple(args.train_mechanisms),
+                                replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
+                                replay_s=args.replay_s or AssimilationConfig.replay_s,
+                                wall=args.wall or AssimilationConfig.wall)
+    if writes:
+        out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
     if args.inputs is not None and args.init is not None:
         raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
@@ -154,7 +168,11 @@ def cmd_assimilate(args) -> int:
                   f"its mechanisms {[m.id for m in mechanisms]}")
             closure = None
     mechanisms = tuple(mechanisms) + tuple(_parse_mechanism(spec) for spec in args.mechanism)
-    assim = Assimilator(runs, config, closure=closure, mechanisms=mechanisms)
+    local, parallel = runs, None
+    if launch is not None:  # this rank's shard of the runs, cut by probed cost
+        local, parallel = launch.shard(runs, config, closure, mechanisms)
+        print(launch.describe([r.name for r in runs]), flush=True)
+    assim = Assimilator(local, config, closure=closure, mechanisms=mechanisms, parallel=parallel)
 
     def report(r):
         tag = f" ({r.note})" if r.note else ""
@@ -166,12 +184,16 @@ def cmd_assimilate(args) -> int:
         if warning:
             print(f"  warning: {warning}", flush=True)
 
-    result = assim.run(checkpoint=checkpoint, resume=args.resume, logdir=args.logdir, progress=not args.quiet,
-                       on_window=report)
+    result = assim.run(checkpoint=checkpoint, resume=args.resume, logdir=args.logdir,
+                       progress=not args.quiet and writes, on_window=report)
     info = {"runs": [r.name for r in runs], "assimilation": config.to_json(),
-            "final_cost": result.reports[-1].cost_after if result.reports else None}
-    save_model(out, result.closure, runs[0].fluid, info, mechanisms=mechanisms)
-    print(f"wrote {out / 'model.json'}, {out / 'weights.pt'}")
+            "final_cost": result.reports[-1].cost_after if result.reports else None,
+            **(launch.info() if launch is not None else {})}
+    if writes:
+        save_model(out, result.closure, runs[0].fluid, info, mechanisms=tuple(assim.model.mechanisms))
+        print(f"wrote {out / 'model.json'}, {out / 'weights.pt'}")
+    if launch is not None:
+        launch.close()
     return 0
 
 
@@ -226,15 +248,16 @@ def cmd_diagnose(args) -> int:
                              hold=tuple(args.hold), refit_top=refit_top)
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
-    if d.cause:
-        c = d.ranking[0]
-        print(f"cause: {d.cause} {d.extended['params']} (held-out gain {c.heldout_gain:.2f}, "
-              f"95 % CI [{c.heldout_gain_ci[0]:.2f}, {c.heldout_gain_ci[1]:.2f}], dBIC {c.delta_bic:.1f})")
+    v = d.verdict
+    if v.kind == "cause":
+        print(f"cause: {d.cause} ({v.source}): {v.sentence}")
         if d.alternatives:
             print(f"not ruled out (also clear every threshold, dBIC within {d.thresholds.alternative_bic:g}): "
                   + ", ".join(d.alternatives))
+    elif v.kind == "unresolved":
+        print(f"measured, not located: {v.sentence}; candidates: {', '.join(v.candidates)}")
     else:
-        print("cause: none (no candidate clears the evidence thresholds)")
+        print("cause: none (nothing unmetered beyond the noise; no candidate clears the evidence thresholds)")
     print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "
           f"{paths['md']}, {paths['model']}/")
     return 0
@@ -250,9 +273,10 @@ def cmd_bench(args) -> int:
 
         result["training"] = tr = run_training_benchmarks()
         w, m = tr["window_update"], tr["adjoint_memory"]
-        lines.append(f"window update: {w['n_tanks']} tanks, {w['window_s']:.0f} s window, {w['iters']} iterations "
-                     f"({w['function_evals']} evaluations) in {w['update_wall_s']:.1f} s: real-time factor "
-                     f"{w['real_time_factor']:.1f} ({verdict(w['real_time_factor'], 10)})")
+        for label, u in w["modes"].items():
+            lines.append(f"window update, {label}: {w['n_tanks']} tanks, {w['window_s']:.0f} s window, {u['iters']} "
+                         f"iterations ({u['function_evals']} evaluations) in {u['update_wall_s']:.1f} s: real-time "
+                         f"factor {u['real_time_factor']:.1f} ({verdict(u['real_time_factor'], 10)})")
         lines.append(f"autograd memory vs horizon {m['lengths_s']} s: adjoint {m['adjoint_bytes']} B, "
                      f"backprop {m['backprop_bytes']} B, checkpointed {m['checkpointed_bytes']} B")
     print("\n".join(lines))
@@ -303,7 +327,16 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")
     a.add_argument("--out", required=True, help="model directory (model.json, weights.pt, checkpoint.pt)")
     a.add_argument("--window", type=float, default=600.0, help="window length in s (default 600)")
-    a.add_argument("--mode", choices=("fixed", "growing"), default="fixed", help="window mode (default fixed)")
+    a.add_argument("--mode", choices=("fixed", "growing", "replay"), default=None,
+                   help="window mode: the newest window only (fixed), all data so far (growing), or the newest "
+                        "window plus a bounded replay sample of the earlier data (replay); default: "
+                        "AssimilationConfig's (trainers/assimilate.py)")
+    a.add_argument("--wall", choices=("two_node", "lumped"), default=None,
+                   help="the wall: dry and wetted parts at their own temperatures, the shell's sheet resistance "
+                        "trained (two_node), or one lumped temperature (lumped, the paper's); default: "
+                        "AssimilationConfig's")
+    a.add_argument("--replay-segments", type=int, default=None, help="--mode replay: earlier segments per update")
+    a.add_argument("--replay-s", type=float, default=None, help="--mode replay: length of each segment in s")
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
     a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")
@@ -312,14 +345,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what a fixed window keeps of the earlier ones: forget (the paper, default) or laplace "
                         "(a prior on the coefficients they determined; trainers/memory.py)")
     a.add_argument("--gradient", choices=_GRADIENTS, default=None,
-                   help="adjoint (default with dopri5: memory independent of the solver's steps), backprop "
-                        "(default with rosenbrock; through the "
-                        "solver's steps: memory grows with them) or checkpointed (backprop's gradient, one output "
-                        "interval's steps in memory at a time); the latter two are stable where the adjoint's "
-                        "backward re-integration diverges, e.g. a stiff tank with a light wall")
-    a.add_argument("--integrator", choices=("dopri5", "rosenbrock"), default="dopri5",
-                   help="the ODE solver inside training: dopri5 (explicit, default) or rosenbrock (linearly "
-                        "implicit, for stiff tanks such as a light wall; with --gradient backprop or checkpointed)")
+                   help="adjoint (with dopri5: memory independent of the solver's steps), backprop (with rosenbrock; "
+                        "through the solver's steps: memory grows with them) or checkpointed (backprop's gradient, one "
+                        "output interval's steps in memory at a time); default: the integrator's")
+    a.add_argument("--integrator", choices=("dopri5", "rosenbrock"), default=None,
+                   help="the ODE solver inside training: rosenbrock (linearly implicit: steps follow accuracy, not a "
+                        "light wall's stability) or dopri5 (explicit, with the adjoint); default: AssimilationConfig's")
     a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
                    help="a fixed window's initial state: the model's carried state (default), a line fit of the "
                         "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")
@@ -338,6 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "extended = nine (not with --init, whose closure fixes them)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
     a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
+    a.add_argument("--collective-timeout", type=float, default=None, metavar="SECONDS",
+                   help="under torchrun: how long a rank waits for the others at a collective before the job stops "
+                        "with an error (default 600; trainers/distributed.py)")
     a.add_argument("--quiet", action="store_true", help="no progress bar")
     a.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     a.set_defaults(func=cmd_assimilate)
@@ -348,7 +382,8 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--dt", type=float, default=10.0, help="output spacing in s (observation times are added)")
     pr.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     pr.set_defaults(func=cmd_predict)
-    dg = sub.add_parser("diagnose", help="what the model gets wrong, which missing mechanism explains it, the gain")
+    dg = sub.add_parser("diagnose", help="what entered or left the tank unmetered (inventory audit), what the model gets "
+                                         "wrong, which missing mechanism explains it")
     dg.add_argument("runs", nargs="+", help="measured run JSON files of one tank")
     dg.add_argument("--out", required=True, help="output directory (report.json, report.md, figures, model/)")
     dg.add_argument("--model", default=None, help="start from this saved model (default: the reference correlations)")

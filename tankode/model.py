@@ -88,6 +88,8 @@ class Fluxes(NamedTuple):
     h_l_J_per_kg: Tensor
     h_vsat_J_per_kg: Tensor
     h_lsat_J_per_kg: Tensor
+    dA_wl_dH_m: Tensor  # wetted wall area gained per metre of level rise
+    C_w_J_per_K: Tensor  # the wall's heat capacity (the mechanisms' factors included)
 
 
 class TankModel(nn.Module):
@@ -202,8 +204,16 @@ class TankModel(nn.Module):
             L_c_m=g.contact_line_m(H_l), J_evap_kg_s=J,
             h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
             h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
+            dA_wl_dH_m=self._wetted_area_slope(H_l),
+            C_w_J_per_K=torch.as_tensor(self.effective_wall_heat_capacity_J_per_K).expand_as(H_l),
         )
         return f, pv, pl
+
+    def _wetted_area_slope(self, H_l: Tensor) -> Tensor:
+        """d A_wl / dH (m) at level ``H_l`` ``(env,)``, by a central difference of the geometry (detached)."""
+        with torch.no_grad():
+            dH = 1e-4 * self.geometry.radius_m
+            return (self.geometry.wetted_areas_m2(H_l + dH)[0] - self.geometry.wetted_areas_m2(H_l - dH)[0]) / (2 * dH)
 
     def applied_forcing(self, forcing: Forcing) -> Forcing:
         """The operations actually applied: the metered ``forcing`` as the mechanisms change it."""
@@ -214,11 +224,13 @@ class TankModel(nn.Module):
     def extra_heat_W(self, s: Tensor, forcing: Forcing, fluxes: Fluxes):
         """Mechanisms' heat into (vapour, liquid, wall), W, each broadcastable to ``(env,)``.
 
-        ``forcing`` is the applied forcing and ``fluxes`` the baseline's flows at ``s``.
+        ``s`` is the model state ``(env, n_state)``, ``forcing`` the applied forcing and
+        ``fluxes`` the baseline's flows at ``s``.
         """
         q_v = q_l = q_w = 0.0
-        for m in self.mechanisms:
-            a, b, c = m.heat_W(s, forcing, fluxes)
+        base = s[..., :N_STATE]
+        for m, z in zip(self.mechanisms, self.mechanism_states(s)):
+            a, b, c = m.heat_W(base, forcing, fluxes, z)
             q_v, q_l, q_w = q_v + a, q_l + b, q_w + c
         return q_v, q_l, q_w
 
@@ -277,7 +289,7 @@ class TankModel(nn.Module):
         f, pv, pl = self.fluxes(s, fc)
         if hasattr(self.fluid, "far_outside"):  # analytic test fluids have no fitted domain
             self._far_outside(pv, pl)
-        q_v, q_l, q_w = self.extra_heat_W(base, fc, f)
+        q_v, q_l, q_w = self.extra_heat_W(s, fc, f)
         p, J = f.p_v_Pa, f.J_evap_kg_s
         dm_v = fc.mdot_v_in_kg_s - fc.mdot_v_out_kg_s + J
         dm_l = fc.mdot_l_in_kg_s - fc.mdot_l_out_kg_s - J
@@ -287,7 +299,9 @@ class TankModel(nn.Module):
         e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
                - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W + q_l)
         if self.bulk is not None:  # fog leaves the vapour as saturated liquid, flash the liquid as vapour
-            fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl)
+            domain = getattr(self.fluid, "domain", None)  # analytic test fluids have none
+            fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl,
+                                              None if domain is None else torch.as_tensor(domain.margin_K(pv.T_sat.detach())))
             dm_v = dm_v - fog + flash
             dm_l = dm_l + fog - flash
             e_v = e_v - fog * f.h_lsat_J_per_kg + flash * f.h_vsat_J_per_kg
@@ -306,7 +320,7 @@ class TankModel(nn.Module):
         ds = torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
         if self.n_state == N_STATE:
             return ds
-        dz = [m.state_derivative(z, base, fc, f, pl) for m, z in zip(self.mechanisms, self.mechanism_states(s))]
+        dz = [m.state_derivative(z, base, fc, f, pl, ds) for m, z in zip(self.mechanisms, self.mechanism_states(s))]
         return torch.cat([ds, *dz], dim=-1)
 
     def observe(self, s: Tensor) -> Tensor:

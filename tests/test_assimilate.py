@@ -89,12 +89,12 @@ def test_cost_masks_missing_and_weighs_irregular_samples():
 
 
 def test_config_round_trip_and_validation():
-    cfg = AssimilationConfig(mode="growing", batch_fraction=0.5)
+    cfg = AssimilationConfig.paper(mode="growing", batch_fraction=0.5)
     assert AssimilationConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(ValueError, match="mode"):
-        AssimilationConfig(mode="sliding")
+        AssimilationConfig.paper(mode="sliding")
     with pytest.raises(ValueError, match="batch_fraction"):
-        AssimilationConfig(batch_fraction=0.0)
+        AssimilationConfig.paper(batch_fraction=0.0)
 
 
 def _cli(*args, **kw):
@@ -170,7 +170,7 @@ def test_fixed_window_start_takes_measured_channels_from_the_data():
     data = _data(run, noise="clean")
     # A model far from the truth: its own propagated state would be wrong at t_k.
     wrong = ConstantClosure([50.0, 200.0, 500.0, 1000.0])
-    a = Assimilator([data], AssimilationConfig(window_s=60.0, window_start="data"), closure=wrong)
+    a = Assimilator([data], AssimilationConfig.paper(window_s=60.0, window_start="data"), closure=wrong)
     with torch.no_grad():
         s_model = a.predict(a.s0, 0.0, torch.tensor([0.0, 120.0], dtype=torch.float64), NoGradient())[:, -1]
         t_k, s_start = a._span(2, s_model)
@@ -184,7 +184,7 @@ def test_fixed_window_start_takes_measured_channels_from_the_data():
     assert (got[1:4] - true_obs[1:4]).abs().max() < 0.02
     assert abs(float(got[4] - true_obs[4])) < 2e-4
     with pytest.raises(ValueError, match="window_start"):
-        AssimilationConfig(window_start="truth")
+        AssimilationConfig.paper(window_start="truth")
 
 
 def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():
@@ -197,7 +197,7 @@ def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():
     run = _short_run(120.0)
     agent = ScaledClosure(ConstantClosure([50.0, 200.0, 500.0, 1000.0]), torch.ones(4, dtype=torch.float64))
     (data,) = solution_to_runs(run, simulate(run, agent), noise="clean")  # the agent's own prediction
-    a = Assimilator([data], AssimilationConfig(window_s=120.0, memory=LaplaceMemory()), closure=agent)
+    a = Assimilator([data], AssimilationConfig.paper(window_s=120.0, memory=LaplaceMemory()), closure=agent)
     window = Window.from_runs(a.fleet.runs, 0.0, 120.0)
     t_eval = torch.cat([window.t_s, torch.tensor([120.0], dtype=torch.float64)]).unique()
     idx = torch.searchsorted(t_eval, window.t_s)
@@ -230,12 +230,12 @@ def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():
 def test_laplace_memory_config():
     from trainers.memory import LaplaceMemory
 
-    cfg = AssimilationConfig(memory=LaplaceMemory())
+    cfg = AssimilationConfig.paper(memory=LaplaceMemory())
     assert AssimilationConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(ValueError, match="mode='fixed'"):
-        AssimilationConfig(mode="growing", memory=LaplaceMemory())
+        AssimilationConfig.paper(mode="growing", memory=LaplaceMemory())
     with pytest.raises(ValueError, match="memory must be"):
-        AssimilationConfig(memory="laplace")
+        AssimilationConfig.paper(memory="laplace")
     with pytest.raises(ValueError, match="memory 'Remember' is not one of"):
         AssimilationConfig.from_json(cfg.to_json().replace('"LaplaceMemory"', '"Remember"'))
 
@@ -250,7 +250,7 @@ def test_laplace_memory_survives_an_interruption(tmp_path, window_start):
     from trainers.memory import LaplaceMemory
 
     data = _data(_short_run(180.0), noise="high", seed=3)
-    cfg = AssimilationConfig(window_s=60.0, iters=2, memory=LaplaceMemory(), window_start=window_start)
+    cfg = AssimilationConfig.paper(window_s=60.0, iters=2, memory=LaplaceMemory(), window_start=window_start)
     whole = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run()
     assert bool(whole.reports[-1].start_offset_sigmas) == (window_start == "joint")
 
@@ -287,7 +287,7 @@ def test_an_agent_held_at_its_output_bound_is_reported():
         agent.requires_grad_(False)  # nothing to train: the report describes this agent
         agent.net[-1].bias.requires_grad_(True)
         # h_wv at 100 times its reference stiffens the tank: the Rosenbrock solver keeps this quick
-        a = Assimilator([data], AssimilationConfig(window_s=120.0, iters=1, integrator="rosenbrock",
+        a = Assimilator([data], AssimilationConfig.paper(window_s=120.0, iters=1, integrator="rosenbrock",
                                                    gradient=Backprop()), closure=agent)
         reports[name], _, _ = a.update(0, a.s0)
     assert reports["mid-range"].saturated == [[0.0, 0.0, 0.0, 0.0]]
@@ -313,7 +313,7 @@ def test_tensorboard_log_has_the_issue_scalars_and_a_figure_per_environment(tmp_
     # mechanism trained with the agent, its value logged every window.
     from tankode.mechanisms import make_mechanism
 
-    result = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1, window_start="joint",
+    result = Assimilator(runs, AssimilationConfig.paper(window_s=60.0, iters=1, window_start="joint",
                                                   train_mechanisms=("heat_leak_vapor",)),
                          closure=MLPClosure(MLPConfig(seed=0)),
                          mechanisms=(make_mechanism("heat_leak_vapor", Q_W=10.0),)).run(logdir=tmp_path)
@@ -351,7 +351,7 @@ def test_a_prediction_from_t0_that_fails_is_logged_not_raised(tmp_path):
     from trainers.logger import TrainingLogger
 
     runs = [_data(_short_run(120.0, name=n), seed=i) for i, n in enumerate(("tank_a", "tank_b"))]
-    assimilator = Assimilator(runs, AssimilationConfig(window_s=60.0, iters=1), closure=MLPClosure(MLPConfig(seed=0)))
+    assimilator = Assimilator(runs, AssimilationConfig.paper(window_s=60.0, iters=1), closure=MLPClosure(MLPConfig(seed=0)))
     report = assimilator.run().reports[-1]
 
     def failing_predict(*args, **kwargs):
@@ -386,7 +386,7 @@ def test_assimilation_and_simulation_run_on_one_thread_and_restore_the_count():
     torch.set_num_threads(2)
     try:
         data = _data(_short_run(90.0))
-        Assimilator([data], AssimilationConfig(window_s=90.0, iters=1), closure=Recording(MLPConfig(seed=0))).run()
+        Assimilator([data], AssimilationConfig.paper(window_s=90.0, iters=1), closure=Recording(MLPConfig(seed=0))).run()
         simulate(data, Recording(MLPConfig(seed=0)))
         assert torch.get_num_threads() == 2
     finally:
@@ -405,7 +405,7 @@ def test_window_start_sensitivity_moves_one_observed_quantity_at_a_time():
     from trainers.window_start import state_sensitivity
 
     data = _data(_short_run(120.0), noise="clean")
-    a = Assimilator([data], AssimilationConfig(window_s=60.0))
+    a = Assimilator([data], AssimilationConfig.paper(window_s=60.0))
     with torch.no_grad():
         s = a.predict(a.s0, 0.0, torch.tensor([0.0, 60.0], dtype=torch.float64), NoGradient())[:, -1]
         # A quarter of the high noise, where the map is linear: at 1 sigma a 0.4 K ullage offset near
@@ -439,7 +439,7 @@ def test_joint_window_start_recovers_a_drifted_state():
     delta = torch.tensor([[0.0, 0.0, 2.0, 0.0, -3.0]], dtype=torch.float64)
     for prior_sigmas in (100.0, 1.0):
         # The closure is the truth and has nothing to train: the offset is the only unknown.
-        cfg = AssimilationConfig(window_s=60.0, window_start="joint", start_prior_sigmas=prior_sigmas, iters=30)
+        cfg = AssimilationConfig.paper(window_s=60.0, window_start="joint", start_prior_sigmas=prior_sigmas, iters=30)
         a = Assimilator([data], cfg, closure=truth_closure)
         window = Window.from_runs(a.fleet.runs, 60.0, 120.0)
         with torch.no_grad():
@@ -462,10 +462,10 @@ def test_joint_window_start_recovers_a_drifted_state():
         assert (got + delta).abs().max() > 0.2  # the background holds part of the drift back...
         assert (grad + got / (prior_sigmas**2 * n)).abs().max() < 0.02 * float((got / n).abs().max()), (grad, got / n)
     with pytest.raises(ValueError, match="start_prior_sigmas"):
-        AssimilationConfig(window_start="joint", start_prior_sigmas=0.0)
+        AssimilationConfig.paper(window_start="joint", start_prior_sigmas=0.0)
     with pytest.raises(ValueError, match="mode='fixed'"):
-        AssimilationConfig(window_start="joint", mode="growing")
-    cfg = AssimilationConfig(window_start="joint", start_prior_sigmas=3.0)
+        AssimilationConfig.paper(window_start="joint", mode="growing")
+    cfg = AssimilationConfig.paper(window_start="joint", start_prior_sigmas=3.0)
     assert AssimilationConfig.from_json(cfg.to_json()) == cfg
 
 
@@ -480,7 +480,7 @@ def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_checkpointed_train
     run = read_run(MHTB / "P263981D.json").until(300.0)
     notes = {}
     for gradient in (Adjoint(), Checkpointed()):
-        a = Assimilator([run], AssimilationConfig(window_s=300.0, iters=1, gradient=gradient))
+        a = Assimilator([run], AssimilationConfig.paper(window_s=300.0, iters=1, gradient=gradient))
         report, _, _ = a.update(0, a.s0)
         notes[type(gradient).__name__] = report
     adj, bp = notes["Adjoint"], notes["Checkpointed"]

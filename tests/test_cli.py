@@ -155,7 +155,7 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     (start,) = [a for a in sub._actions if a.dest == "window_start"]
     assert start.default == AssimilationConfig.window_start
     for choice in start.choices:  # every choice the parser offers is one the config accepts
-        AssimilationConfig(window_start=choice)
+        AssimilationConfig(window_start=choice, mode="fixed")
     seen = {}
 
     def stand_in(runs, config, **kwargs):
@@ -165,19 +165,22 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     monkeypatch.setattr(trainers.assimilate, "Assimilator", stand_in)
     assert main(["simulate", "case1", "--out", str(tmp_path), "--dt", "600"]) == 0
     args = ["assimilate", str(tmp_path / "case1.json"), "--out", str(tmp_path / "a")]
-    assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "3"]) == 2  # the stand-in stops the command
+    assert main([*args, "--mode", "fixed", "--window-start", "joint", "--start-prior-sigmas", "3"]) == 2  # the stand-in stops the command
     assert (seen["config"].window_start, seen["config"].start_prior_sigmas) == ("joint", 3.0)
-    assert type(seen["config"].gradient).__name__ == "Adjoint"
-    assert main([*args, "--gradient", "backprop"]) == 2  # the stand-in stops the command
-    assert type(seen["config"].gradient).__name__ == "Backprop"
-    # Rosenbrock has no adjoint: its default gradient is Backprop
-    assert main([*args, "--integrator", "rosenbrock"]) == 2  # the stand-in stops the command
+    # The defaults are the configuration's: Rosenbrock, whose gradient is Backprop (it has no adjoint)
     assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("rosenbrock", "Backprop")
+    assert seen["config"] == AssimilationConfig(mode="fixed", window_start="joint", start_prior_sigmas=3.0)
+    assert main([*args, "--gradient", "checkpointed"]) == 2  # the stand-in stops the command
+    assert type(seen["config"].gradient).__name__ == "Checkpointed"
+    # dopri5's default gradient is the adjoint
+    assert main([*args, "--integrator", "dopri5"]) == 2  # the stand-in stops the command
+    assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("dopri5", "Adjoint")
     assert main([*args, "--integrator", "rosenbrock", "--gradient", "adjoint"]) == 2
     assert "has no continuous adjoint" in capsys.readouterr().err
     # mechanisms added to the model and trained with the agent
-    assert main([*args, "--mechanism", "dry_wall_node:R_sheet_K_per_W=10", "--train-mechanisms", "dry_wall_node"]) == 2  # the stand-in stops the command
+    assert main([*args, "--mechanism", "dry_wall_node:R_sheet_K_per_W=10", "--train-mechanisms", "dry_wall_node",
+                 "--wall", "lumped"]) == 2  # the stand-in stops the command
     assert seen["config"].train_mechanisms == ("dry_wall_node",)
     assert [(m.id, m.values_dict()) for m in seen["mechanisms"]] == [("dry_wall_node", {"R_sheet_K_per_W": 10.0})]
-    assert main([*args, "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
+    assert main([*args, "--mode", "fixed", "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err

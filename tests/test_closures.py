@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from tankode.analytic import AnalyticFluid
-from tankode.closures import (EXTENDED_FEATURES, FEATURE_NAMES, ClosureInputs, MLPClosure, MLPConfig, ReferenceClosure,
-                              ReferenceCorrelation, ScaledClosure, mlp_features)
+from tankode.closures import (EXTENDED_FEATURES, FEATURE_NAMES, ClosureInputs, MLPClosure, MLPConfig,
+                              NaturalConvectionClosure, ReferenceClosure, ReferenceCorrelation, ScaledClosure,
+                              mlp_features)
 from tankode.closures.mlp import WAVE_DAMPING
 from tankode.closures.reference import XI_11, first_slosh_frequency_Hz, wave_height_m
 
@@ -103,7 +104,7 @@ def test_sloshing_raises_interface_coefficients_in_the_expected_range():
 def test_mlp_has_484_weights_500_with_the_extended_inputs_and_starts_at_h_ref():
     extended = MLPClosure(MLPConfig(features=EXTENDED_FEATURES))
     assert sum(p.numel() for p in extended.parameters()) == 9 * 16 + 16 + 16 * 16 + 16 + 16 * 4 + 4 == 500
-    cfg = MLPConfig()
+    cfg = MLPConfig(base="constant")
     mlp = MLPClosure(cfg)
     assert len(cfg.features) == 8
     assert sum(p.numel() for p in mlp.parameters()) == 484
@@ -111,8 +112,33 @@ def test_mlp_has_484_weights_500_with_the_extended_inputs_and_starts_at_h_ref():
     assert torch.allclose(h, torch.tensor(cfg.h_ref_W_m2K, dtype=torch.float64).expand(3, 4), rtol=1e-14)
 
 
+@pytest.mark.parametrize("base, closure", [("natural", NaturalConvectionClosure), ("reference", ReferenceClosure)])
+def test_an_untrained_residual_agent_is_its_base_closure_and_its_factor_is_bounded(base, closure):
+    x = _inputs(A0=0.01, f=0.6, T_v=30.0, T_w=26.0, n=3)
+    mlp = MLPClosure(MLPConfig(base=base))
+    assert sum(p.numel() for p in mlp.parameters()) == 484  # the base has no weights
+    assert torch.allclose(mlp(x), closure()(x), rtol=1e-14)
+    assert torch.equal(mlp.output_position(x), torch.zeros(3, 4, dtype=torch.float64))
+    with torch.no_grad():
+        for p in mlp.parameters():
+            p.normal_(0, 50.0)
+    factor = mlp(x) / closure()(x)
+    assert (factor >= math.exp(-mlp.config.span) * (1 - 1e-12)).all() and (factor <= math.exp(mlp.config.span) * (1 + 1e-12)).all()
+
+
+def test_natural_convection_closure_follows_each_surface_and_the_stable_side():
+    # A warmer wall convects more into the ullage; a liquid colder than saturation (stable) exchanges less.
+    warm = NaturalConvectionClosure()(_inputs(T_v=25.0, T_w=30.0, n=1))
+    cool = NaturalConvectionClosure()(_inputs(T_v=25.0, T_w=25.5, n=1))
+    assert warm[0, 2] > cool[0, 2]
+    T_sat = float(_inputs().T_sat_K)
+    unstable = NaturalConvectionClosure()(_inputs(T_l=T_sat + 1.0, n=1))
+    stable = NaturalConvectionClosure()(_inputs(T_l=T_sat - 1.0, n=1))
+    assert (unstable[0, 1] > stable[0, 1]) and torch.isfinite(stable).all() and (stable > 0).all()
+
+
 def test_mlp_outputs_stay_bounded_for_any_weights():
-    cfg = MLPConfig()
+    cfg = MLPConfig(base="constant")
     mlp = MLPClosure(cfg)
     with torch.no_grad():
         for p in mlp.parameters():
@@ -200,11 +226,11 @@ def test_supervised_fit_recovers_coefficients_an_mlp_can_represent():
 
     torch.manual_seed(0)
     features = torch.rand(200, 8, dtype=torch.float64)
-    teacher = MLPClosure(MLPConfig(seed=5))
+    teacher = MLPClosure(MLPConfig(seed=5, base="constant"))
     with torch.no_grad():
         teacher.net[-1].weight.normal_(0, 0.3)  # a non-trivial target inside the output range
         theta = torch.exp(teacher.log_theta(features))
-    student = MLPClosure(MLPConfig(seed=1))
+    student = MLPClosure(MLPConfig(seed=1, base="constant"))
     assert log_error(student, features, theta).mean() > 0.1
     mse = fit_supervised(student, features, theta, weight_decay=0.0, max_iter=500)
     assert mse < 1e-4

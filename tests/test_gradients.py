@@ -25,7 +25,7 @@ def data():
 
 def _setup(data, closure, t0=600.0, t1=780.0, mechanisms=()):
     """A 3-minute window starting with sloshing, integrated from the state at t0."""
-    a = Assimilator([data], AssimilationConfig(**TIGHT), closure=closure, mechanisms=mechanisms)
+    a = Assimilator([data], AssimilationConfig.paper(**TIGHT), closure=closure, mechanisms=mechanisms)
     with torch.no_grad():
         s_start = a.predict(a.s0, 0.0, torch.tensor([0.0, t0], dtype=torch.float64), NoGradient())[:, -1]
     w = Window.from_runs(a.fleet.runs, t0, t1)

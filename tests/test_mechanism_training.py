@@ -35,7 +35,7 @@ START = {"heat_leak_vapor": {"Q_W": 10.0}, "wall_heat_capacity_error": {"eps": 0
 
 def _assimilator(data, iters=20, start=START, **cfg):
     mechanisms = tuple(make_mechanism(mid, **v) for mid, v in start.items())
-    config = AssimilationConfig(window_s=1e9, mode="growing", iters=iters, gradient=Backprop(),
+    config = AssimilationConfig.paper(window_s=1e9, mode="growing", iters=iters, gradient=Backprop(),
                                 train_mechanisms=tuple(HIDDEN), **cfg)
     return Assimilator([data], config, closure=TRUTH, mechanisms=mechanisms)
 
@@ -96,20 +96,20 @@ def test_hidden_heat_leak_and_wall_capacity_are_recovered_and_saved(data, tmp_pa
 def test_refused_mechanisms_say_why(data, ids, message):
     mechanisms = (make_mechanism("pressure_sensor_bias", bias_Pa=0.0), make_mechanism("heat_leak_liquid", Q_W=0.0))
     with pytest.raises(ValueError, match=message):
-        Assimilator([data], AssimilationConfig(train_mechanisms=ids), closure=TRUTH, mechanisms=mechanisms)
+        Assimilator([data], AssimilationConfig.paper(train_mechanisms=ids), closure=TRUTH, mechanisms=mechanisms)
 
 
 def test_config_validates_and_round_trips_train_mechanisms():
     from trainers.memory import LaplaceMemory
 
-    cfg = AssimilationConfig(train_mechanisms=("dry_wall_node",))
+    cfg = AssimilationConfig.paper(train_mechanisms=("dry_wall_node",))
     assert AssimilationConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(ValueError, match="distinct mechanism ids"):
-        AssimilationConfig(train_mechanisms=("a", "a"))
+        AssimilationConfig.paper(train_mechanisms=("a", "a"))
     with pytest.raises(ValueError, match="distinct mechanism ids"):
-        AssimilationConfig(train_mechanisms=["dry_wall_node"])
+        AssimilationConfig.paper(train_mechanisms=["dry_wall_node"])
     with pytest.raises(ValueError, match="Forget"):
-        AssimilationConfig(train_mechanisms=("dry_wall_node",), memory=LaplaceMemory())
+        AssimilationConfig.paper(train_mechanisms=("dry_wall_node",), memory=LaplaceMemory())
 
 
 class _Killed(Exception):
@@ -123,7 +123,7 @@ def test_interrupted_training_resumes_to_the_same_mechanism_values(data, tmp_pat
 
     def assimilator():
         mechanisms = tuple(make_mechanism(mid, **v) for mid, v in START.items())
-        cfg = AssimilationConfig(window_s=150.0, mode="growing", iters=4, gradient=Backprop(),
+        cfg = AssimilationConfig.paper(window_s=150.0, mode="growing", iters=4, gradient=Backprop(),
                                  train_mechanisms=tuple(HIDDEN))
         return Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=0)), mechanisms=mechanisms)
 

@@ -205,3 +205,55 @@ def test_warnings_and_unexpected_errors_are_one_line(capsys):
 
     assert describe_error(KeyError("x")).startswith("internal error (KeyError")
     assert "\n" not in describe_error(RuntimeError("a\n  b\n c"))
+
+
+# ------------------------------------------------------------------ impossible schedules fail fast, with the cause
+@pytest.mark.parametrize("meta, columns, words", [
+    ({"initial.fill_ratio": 0.999}, (), ["ullage vanished", "0.999 full"]),
+    ({}, (("mdot_l_out_kg_s", 2.0),), ["dry"]),
+    ({}, (("Q_aw_W", -1e7),), ["wall temperature fell", "Q_aw_W is -1e+07 W"]),
+    ({}, (("mdot_v_in_kg_s", 100.0), ("T_v_in_K", 30.0), ("p_v_in_Pa", 5e5)), ["vapour inflow is 100 kg/s"]),
+    ({"duration_s": 1e6}, (), ["ullage is nearly gone"]),
+], ids=["fill-0.999", "drained-dry", "wall-below-0K", "vapour-inflow-100kg/s", "duration-1e6s"])
+def test_impossible_schedules_fail_within_seconds_naming_the_cause(case3, tmp_path, capsys, meta, columns, words):
+    run = case3
+    for k, column in enumerate(columns or [None]):
+        run = _variant(run, tmp_path / f"v{k}", meta if k == 0 else {}, column)
+    start = time.perf_counter()
+    line = _error(capsys, ["simulate", str(run), "--out", str(tmp_path / "o")])
+    assert time.perf_counter() - start < 30  # seconds of work, not minutes of a stalled solver
+    for w in words:
+        assert w in line, line
+    assert " at t = " in line and "in state env 0" in line
+
+
+def test_a_run_at_10_bar_simulates_on_the_wide_property_domain(case3, tmp_path):
+    # No measured pressure contradicts the metadata's 9 bar: a valid run beyond the default domain.
+    d = json.loads(case3.read_text())
+    d["initial"].update({"p_v_Pa": 9e5, "T_v_K": 33.0, "T_l_K": 24.0, "T_w_K": 30.0})
+    d["noise_std"] = {"T_l": 0.2}
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "case3.json").write_text(json.dumps(d))
+    rows = (case3.parent / "case3.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    keep = [i for i, h in enumerate(header) if h not in ("p_v_Pa", "T_v_K", "T_w_K", "H_l_m", "T_l_K")]
+    (tmp_path / "r" / "case3.csv").write_text("\n".join(",".join(r.split(",")[i] for i in keep) for r in rows) + "\n")
+    assert main(["simulate", str(tmp_path / "r" / "case3.json"), "--out", str(tmp_path / "o")]) == 0
+    p = read_run(tmp_path / "o" / "case3.json").observations.channel("p_v_Pa")[1]
+    assert p.max() > 8e5
+
+
+@needs_mhtb
+@pytest.mark.parametrize("name", ["P263981D", pytest.param("P263981T", marks=pytest.mark.slow)])
+def test_default_assimilate_and_predict_complete_on_the_stiff_real_tanks(tmp_path, capsys, name):
+    # MHTB's light aluminium wall makes the tank stiff: the defaults (Rosenbrock, replay windows,
+    # the two-node wall) train on it; the paper's dopri5 with the adjoint crashed here.
+    from tankode.run_io import write_run
+
+    run = read_run(MHTB / f"{name}.json").until(7200.0)
+    write_run(run.replace(name=f"{name}_2h"), tmp_path / "data")
+    path = str(tmp_path / "data" / f"{name}_2h.json")
+    assert main(["assimilate", path, "--out", str(tmp_path / "agent"), "--iters", "2", "--window", "3600", "--quiet"]) == 0
+    assert main(["predict", str(tmp_path / "agent"), path, "--out", str(tmp_path / "pred")]) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "error" not in err

@@ -3,8 +3,16 @@
 The data of a fleet arrive as a stream. Every ``window_s`` seconds the agent (the MLP closure)
 is updated with ``iters`` bounded L-BFGS iterations on the cost J over
 
-* ``mode="fixed"``: only the newest window ``[t_k, t_k + window_s]``, or
-* ``mode="growing"``: all data so far ``[t_0, t_k + window_s]``.
+* ``mode="fixed"``: only the newest window ``[t_k, t_k + window_s]``;
+* ``mode="growing"``: all data so far ``[t_0, t_k + window_s]`` (the cost grows with time);
+* ``mode="replay"``: the newest window plus a bounded replay sample of the earlier data
+  (experience replay, as in the reinforcement-learning setting the paper borrows from), at a
+  fixed cost per update: ``replay_segments`` segments of ``replay_s`` seconds, their start
+  times drawn uniformly (seeded by ``seed`` and the window index) from the times the earlier
+  windows were simulated at, each integrated from the state the model reached there after that
+  window's update. The cost weighs the newest window by its share of the data so far,
+  ``window_s / (t_k + window_s - t_0)``, and the replay segments share the rest equally, so
+  every second of the stream carries the same weight in expectation, as in a growing window.
 
 Initial state of each window. Growing windows always start from the run's initial state (the
 metadata's p, T and fill). A fixed window k > 0 starts from the state at ``t_k`` of the
@@ -36,24 +44,26 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from tankode.closures import THETA_NAMES, MLPClosure, MLPConfig
+from tankode.closures import BASES, THETA_NAMES, MLPClosure, MLPConfig
 from tankode.errors import SimulationError
 from tankode.fleet import Fleet
 from tankode.integrate import integrate, state_scale
+from tankode.mechanisms import make_mechanism
 from tankode.model import TankModel
 from tankode.solver import AdaptiveRK, Adjoint, Backprop, Checkpointed, NoGradient, Rosenbrock
 from tankode.state import N_STATE
 from tankode.threads import single_threaded
 
-from .checkpoint import load_checkpoint, save_checkpoint
+from .checkpoint import save_checkpoint
 from .cost import Window, cost, cost_terms
+from .distributed import SingleProcess
 from .evaluate import closure_inputs_along
 from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .mechanism_params import TrainedMechanisms
@@ -61,6 +71,7 @@ from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 from .window_start import StartEstimate
 
 _INTEGRATORS = {"dopri5": AdaptiveRK, "rosenbrock": Rosenbrock}
+MODES = ("fixed", "growing", "replay")
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop, "Checkpointed": Checkpointed}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
 
@@ -71,7 +82,9 @@ class AssimilationConfig:
 
     Attributes:
         window_s: window length (s); the paper's 10 minutes.
-        mode: "fixed" (newest window only) or "growing" (all data so far).
+        mode: "replay" (default: the newest window and a bounded replay sample of the earlier
+            data, every second of the stream weighted alike at a fixed cost per update; module
+            docstring), "fixed" (the paper: the newest window only) or "growing" (all data so far).
         iters: L-BFGS iterations per window update (paper: k).
         batch_fraction: share of the window's observation times per gradient, in (0, 1].
         iters_per_batch: iterations on one mini-batch before drawing the next (ignored when
@@ -85,28 +98,45 @@ class AssimilationConfig:
             as a prior (as a sequential Bayesian update would carry it), which limits how far
             one window's data drag the agent (forgetting, over-fitting 60 noisy samples).
             0 = the paper's plain cost.
+        base_prior_weight: strength of a Gaussian prior centred on the weights the agent started
+            the run with, ``J + base_prior_weight/2 * mean((w - w_0)^2)``: for an agent on a
+            physical base (``MLPConfig.base``), whose start is that closure, the learned correction
+            stays near 1 where the data do not ask for one (an operating regime not seen yet).
         window_start: "model", "data" or "joint": where a fixed window's initial state comes
             from (module docstring).
         start_prior_sigmas: with ``window_start="joint"``, the background std of the carried
             state in units of each channel's noise std (1: the carried state is worth one
             sample per channel, so a window's ~60 samples decide the offset).
-        gradient: ``Adjoint()`` (default; memory independent of the step count), ``Backprop()``
-            or ``Checkpointed()`` (Backprop's gradient, memory bounded by one output interval's
-            steps; for stiff tanks, where the adjoint's backward re-integration diverges).
+        gradient: ``Backprop()`` (default, with the Rosenbrock integrator: through its few
+            steps), ``Adjoint()`` (with dopri5: memory independent of the step count; its backward
+            re-integration diverges on stiff tanks) or ``Checkpointed()`` (Backprop's gradient,
+            memory bounded by one output interval's steps).
         memory: what a fixed window's update keeps of the earlier windows: ``Forget()`` (the
             paper: nothing) or ``LaplaceMemory()`` (a Laplace prior on the coefficients the
             earlier windows determined; ``trainers/memory.py``). Fixed mode only: growing
             windows refit all the data anyway.
-        integrator: the ODE solver inside training: "dopri5" (``AdaptiveRK``, explicit: fast on
-            tanks that are not stiff, the paper's cases) or "rosenbrock" (``Rosenbrock``, linearly
-            implicit: for stiff tanks, e.g. a light wall, where dopri5's steps are held to
-            fractions of a second: on the MHTB tests about a hundred times fewer right-hand sides,
-            ``experiments/mhtb_agent.py``). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
+        integrator: the ODE solver inside training: "rosenbrock" (``Rosenbrock``, linearly
+            implicit, the default: its steps follow accuracy, not the stability of a fast mode, a
+            light wall's or a strongly convecting ullage's; on another simulator's 13.6 m3 tank one
+            20-minute window trained in 22 s against dopri5's 363 s, on the MHTB tests it takes
+            about a hundred times fewer right-hand sides) or "dopri5" (``AdaptiveRK``, explicit,
+            with any gradient). Rosenbrock has no adjoint: use it with Backprop() or Checkpointed().
         rtol, atol: solver tolerances inside training (looser than for reference simulations:
             the noise, not the solver, limits the fit).
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
             ODE too stiff to integrate within it is rejected (the update keeps the last good
             weights) instead of stalling the real-time loop.
+        replay_segments: with ``mode="replay"``, the earlier segments replayed per update.
+        replay_s: with ``mode="replay"``, the length of each replayed segment (s); with the
+            defaults an update integrates the window plus 3 x 200 s, twice a 10-minute window.
+        wall: ``"two_node"``: the dry and the wetted wall at their own temperatures
+            (``tankode.mechanisms.TwoNodeWall``), the shell's sheet resistance trained with the
+            agent; ``"lumped"``: the paper's one wall temperature.
+        wall_R_sheet_K_per_W: the sheet resistance the two-node wall starts from (K/W;
+            aluminium of 10 mm at 20 K; the training moves it).
+        agent_base: the base closure of a fresh agent (``MLPConfig.base``): ``"natural"``
+            (textbook convection on each surface, which the agent corrects), ``"reference"`` or
+            ``"constant"`` (the paper's agent, from fixed mid-range coefficients).
         train_mechanisms: ids of the model's mechanisms whose parameters each window's update
             trains with the weights, inside their physical bounds (``trainers/mechanism_params.py``):
             e.g. ``("dry_wall_node",)`` learns the shell's sheet resistance from the stream. Empty
@@ -115,7 +145,7 @@ class AssimilationConfig:
     """
 
     window_s: float = 600.0
-    mode: str = "fixed"
+    mode: str = "replay"
     iters: int = 20
     batch_fraction: float = 1.0
     iters_per_batch: int = 5
@@ -123,15 +153,21 @@ class AssimilationConfig:
     weight_bound: float = 10.0
     seed: int = 0
     prior_weight: float = 0.0
+    base_prior_weight: float = 0.0
     window_start: str = "model"
     start_prior_sigmas: float = 1.0
-    gradient: Adjoint | Backprop | Checkpointed = Adjoint()
+    gradient: Adjoint | Backprop | Checkpointed = Backprop()
     memory: Forget | LaplaceMemory = Forget()
-    integrator: str = "dopri5"
+    integrator: str = "rosenbrock"
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 20_000
     train_mechanisms: tuple[str, ...] = ()
+    replay_segments: int = 3
+    replay_s: float = 200.0
+    wall: str = "two_node"
+    wall_R_sheet_K_per_W: float = 10.0
+    agent_base: str = "natural"
 
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -140,14 +176,24 @@ class AssimilationConfig:
             raise ValueError(f"window_start must be 'model', 'data' or 'joint', got {self.window_start!r}")
         if not (self.start_prior_sigmas > 0 and math.isfinite(self.start_prior_sigmas)):
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
-        if self.mode not in ("fixed", "growing"):
-            raise ValueError(f"mode must be 'fixed' or 'growing', got {self.mode!r}")
+        if self.agent_base not in BASES:
+            raise ValueError(f"agent_base must be one of {BASES}, got {self.agent_base!r}")
+        if self.wall not in ("two_node", "lumped"):
+            raise ValueError(f"wall must be 'two_node' or 'lumped', got {self.wall!r}")
+        if not (0 < self.wall_R_sheet_K_per_W < 1e4):
+            raise ValueError(f"wall_R_sheet_K_per_W must be in (0, 1e4) K/W, got {self.wall_R_sheet_K_per_W}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.replay_segments < 1 or not (self.replay_s > 0 and math.isfinite(self.replay_s)):
+            raise ValueError(f"replay_segments must be >= 1 and replay_s a positive number of seconds, got "
+                             f"{self.replay_segments} and {self.replay_s}")
         if self.iters < 1 or self.iters_per_batch < 1 or self.history_size < 1:
             raise ValueError("iters, iters_per_batch and history_size must be >= 1")
         if not (0 < self.batch_fraction <= 1):
             raise ValueError(f"batch_fraction must be in (0, 1], got {self.batch_fraction}")
-        if not (self.prior_weight >= 0 and math.isfinite(self.prior_weight)):
-            raise ValueError(f"prior_weight must be finite and >= 0, got {self.prior_weight}")
+        for name in ("prior_weight", "base_prior_weight"):
+            if not (getattr(self, name) >= 0 and math.isfinite(getattr(self, name))):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
         if not (self.weight_bound > 0):
             raise ValueError(f"weight_bound must be > 0, got {self.weight_bound}")
         if not isinstance(self.gradient, (Adjoint, Backprop, Checkpointed)):
@@ -168,6 +214,14 @@ class AssimilationConfig:
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
+    @staticmethod
+    def paper(**changes) -> "AssimilationConfig":
+        """The paper's setup: fixed windows, dopri5 with the adjoint, one lumped wall, the agent
+        from constant coefficients; ``changes`` override fields (e.g. ``window_s``, ``iters``).
+        The studies that reproduce the paper's figures on its own cases use it."""
+        return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
+                                          agent_base="constant"), **changes)
+
     def to_json(self) -> str:
         d = asdict(self)
         d["gradient"] = type(self.gradient).__name__
@@ -181,6 +235,12 @@ class AssimilationConfig:
         d.setdefault("memory", "Forget")
         d.setdefault("start_prior_sigmas", 1.0)  # unused before window_start="joint" existed
         d.setdefault("integrator", "dopri5")  # the only one before Rosenbrock existed
+        d.setdefault("replay_segments", 3)  # unused before the replay mode existed
+        d.setdefault("replay_s", 200.0)
+        d.setdefault("wall", "lumped")  # the only wall before the two-node one existed
+        d.setdefault("base_prior_weight", 0.0)
+        d.setdefault("agent_base", "constant")  # the only agent before the residual one existed
+        d.setdefault("wall_R_sheet_K_per_W", 10.0)
         d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
@@ -280,13 +340,26 @@ class Assimilator:
             diagnosis extended), part of the model; their values stay fixed while the closure
             trains, except those of ``config.train_mechanisms``, which are trained in place
             (the objects passed here hold the trained values afterwards, as the closure does).
+        parallel: where the fleet's other environments are (``trainers/distributed.py``):
+            ``SingleProcess()`` (None, the default: all of them are ``runs``) or ``DataParallel``
+            (``runs`` are this rank's shard: the data cost and its gradient are all-reduced
+            inside every loss evaluation, report rows and checkpoints cover the whole fleet).
     """
 
     def __init__(self, runs, config: AssimilationConfig = AssimilationConfig(), closure=None, surrogate=None,
-                 mechanisms=()):
+                 mechanisms=(), parallel=None):
         self.fleet = Fleet.from_runs(runs, surrogate)
         self.config = config
-        self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed))
+        self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base))
+        mechanisms, trained = tuple(mechanisms), config.train_mechanisms
+        ids = {m.id for m in mechanisms}
+        if config.wall == "two_node":
+            if "dry_wall_node" in ids or "dry_wall_heating" in ids:
+                raise ValueError("wall='two_node' models the dry wall already; with dry_wall_node or dry_wall_heating "
+                                 "use wall='lumped'")
+            if "two_node_wall" not in ids:  # a given one (a saved model's) keeps its value
+                mechanisms += (make_mechanism("two_node_wall", R_sheet_K_per_W=config.wall_R_sheet_K_per_W),)
+            trained = tuple(dict.fromkeys(trained + ("two_node_wall",)))
         self.model = TankModel(self.fleet.fluid, self.fleet.geometry, self.closure,
                                self.fleet.wall_heat_capacity_J_per_K, mechanisms)
         self.s0 = self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))  # (env, n_state)
@@ -295,7 +368,12 @@ class Assimilator:
                                                       max_rhs_evals=config.max_rhs_evals)
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
         self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
-        self.trained = TrainedMechanisms(self.model.mechanisms, config.train_mechanisms)
+        # mode="replay": every trained window's output times and states after its update.
+        self.history: list[tuple[Tensor, Tensor]] = []
+        self.trained = TrainedMechanisms(self.model.mechanisms, trained)
+        self.w0 = [p.detach().clone() for p in self.closure.parameters()]  # base_prior_weight's centre
+        self.parallel = SingleProcess() if parallel is None else parallel
+        self.parallel.check(self)
 
     # -- forward pieces ------------------------------------------------------------------------
 
@@ -314,7 +392,7 @@ class Assimilator:
         if self.config.mode == "growing" or k == 0:
             return self.fleet.t0_s, self.s0
         t_k = self.windows[k][0]
-        if self.config.window_start in ("model", "joint"):  # joint: offset fitted in update()
+        if self.config.window_start in ("model", "joint") or self.config.mode == "replay":
             return t_k, s_next
         return t_k, self._data_corrected(s_next, *self.windows[k - 1])
 
@@ -337,6 +415,29 @@ class Assimilator:
         tank = self.fleet.state_from(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], V_l)  # (env, 7)
         return torch.cat([tank, s_model[:, N_STATE:].detach()], dim=-1)
 
+    def _replay(self, k: int) -> list[tuple[float, Tensor, Window, Tensor, Tensor]]:
+        """Window k's replay sample: ``(t_start, s_start, window, t_eval, obs_index)`` per segment (module docstring)."""
+        cfg = self.config
+        t_k = self.windows[k][0]
+        if not self.history:
+            return []
+        times = torch.cat([t for t, _ in self.history])
+        states = torch.cat([s for _, s in self.history], dim=1)
+        candidates = (times <= t_k - cfg.replay_s + 1e-9).nonzero().flatten()
+        if len(candidates) == 0:
+            return []
+        rng = np.random.default_rng([cfg.seed, k, 1])
+        out = []
+        for i in rng.choice(candidates.numpy(), size=cfg.replay_segments, replace=True):
+            a = float(times[i])
+            window = Window.from_runs(self.fleet.runs, a, a + cfg.replay_s)
+            if not self.parallel.any(len(window) > 0):  # no data there (with data parallelism: on any rank)
+                continue
+            t_eval = torch.cat([torch.tensor([a], dtype=torch.float64), window.t_s,
+                                torch.tensor([a + cfg.replay_s], dtype=torch.float64)]).unique()
+            out.append((a, states[:, i].detach(), window, t_eval, torch.searchsorted(t_eval, window.t_s)))
+        return out
+
     # -- one window ----------------------------------------------------------------------------
 
     # One torch thread: the tensors are (env, 7) and an (env, 8) MLP, so extra threads only
@@ -346,11 +447,13 @@ class Assimilator:
     def update(self, k: int, s_next: Tensor) -> tuple[WindowReport, Tensor, dict]:
         """Train on window k; return its report, the next fixed window's initial state and the optimiser state."""
         cfg = self.config
-        t_data0 = self.windows[k][0] if cfg.mode == "fixed" else self.fleet.t0_s
+        t_data0 = self.fleet.t0_s if cfg.mode == "growing" else self.windows[k][0]
         t1 = self.windows[k][1]
         t_start, s_start = self._span(k, s_next)
         window = Window.from_runs(self.fleet.runs, t_data0, t1)
-        t_eval = torch.cat([window.t_s, torch.tensor([t1], dtype=torch.float64)]).unique()
+        # Output times: the window's sample times (with data parallelism: of every rank's runs, so all
+        # ranks replay from the same times).
+        t_eval = self.parallel.times(torch.cat([window.t_s, torch.tensor([t1], dtype=torch.float64)]).unique())
         obs_index = torch.searchsorted(t_eval, window.t_s)
         start = time.perf_counter()
 
@@ -369,18 +472,34 @@ class Assimilator:
         duration_s = t1 - t_data0
 
         in_backward = False  # set once the forward pass of an evaluation has succeeded
+        replay = self._replay(k) if cfg.mode == "replay" else []
+        # Every second of the stream weighs the same in expectation (module docstring).
+        w_new = (t1 - self.windows[k][0]) / (t1 - self.fleet.t0_s) if replay else 1.0
+        w_replay = (1.0 - w_new) / max(len(replay), 1)
+
+        def data_cost(mask=None):
+            s0 = s_start if estimate is None else estimate.state()
+            states = self.predict(s0, t_start, t_eval, cfg.gradient)
+            pred = self.model.observe(states[:, obs_index])
+            J = w_new * cost(pred, window, mask)
+            for a, s_a, window_a, t_eval_a, index_a in replay:
+                J = J + w_replay * cost(self.model.observe(self.predict(s_a, a, t_eval_a, cfg.gradient)[:, index_a]),
+                                        window_a)
+            return J
+
+        trained_tensors = [p for _, p in named]
 
         def loss(mask=None):
             nonlocal in_backward
             in_backward = False
-            s0 = s_start if estimate is None else estimate.state()
-            states = self.predict(s0, t_start, t_eval, cfg.gradient)
-            pred = self.model.observe(states[:, obs_index])
-            J = cost(pred, window, mask)
+            # The environments' share of J, summed over all ranks with its gradient (self.parallel).
+            J = self.parallel.data_cost(lambda: data_cost(mask), trained_tensors)
             if estimate is not None:
                 J = J + estimate.penalty()
             if cfg.prior_weight > 0:
                 J = J + 0.5 * cfg.prior_weight * _mean_square_change(self.closure.parameters(), anchor)
+            if cfg.base_prior_weight > 0:
+                J = J + 0.5 * cfg.base_prior_weight * _mean_square_change(self.closure.parameters(), self.w0)
             if prior is not None:
                 J = J + prior(duration_s)
             in_backward = True
@@ -397,12 +516,13 @@ class Assimilator:
         opt = BoundedLBFGS(named, bounds, max_iter=per_step, history_size=cfg.history_size, batch=batch,
                            reject=(SimulationError, AssertionError))
         with torch.no_grad():
-            before = float(cost(self.model.observe(self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]),
-                                window))
+            before = self.parallel.mean(float(cost(self.model.observe(
+                self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]), window)))
+        # (J of the newest window before and after are reported; the replayed segments only train.)
         n_evals = n_iters = 0
         grad_norm = float("nan")
         note = ""
-        if len(window) > 0:
+        if self.parallel.any(len(window) > 0):  # with data parallelism: data on any rank
             for _ in range(n_outer):
                 try:
                     res = opt.step(loss)
@@ -424,8 +544,8 @@ class Assimilator:
         with torch.no_grad():
             states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])
-            terms = cost_terms(pred, window)
-            after = float(terms.sum() / window.n_env)
+            terms = self.parallel.rows(cost_terms(pred, window))  # (N, 5): the whole fleet's
+            after = float(terms.sum() / terms.shape[0])
             inputs = closure_inputs_along(self.model, self.fleet, t_eval, states)
             theta = torch.stack([self.model.closure(x) for x in inputs], dim=1)  # (env, T, 4)
             saturated = []
@@ -434,7 +554,12 @@ class Assimilator:
                 saturated = (position.abs() >= SATURATED_TANH).double().mean(1).tolist()
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
-        report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta.mean(1).tolist(), grad_norm,
+        if cfg.mode == "replay":
+            self.history.append((t_eval.clone(), states.detach().clone()))
+        theta_mean = self.parallel.rows(theta.mean(1))
+        if saturated:
+            saturated = self.parallel.rows(torch.tensor(saturated)).tolist()
+        report = WindowReport(k, t_data0, t1, before, after, terms.tolist(), theta_mean.tolist(), grad_norm,
                               n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated,
                               self.trained.values())
         return report, states[:, -1].detach().clone(), opt.state_dict()
@@ -455,13 +580,14 @@ class Assimilator:
         """
         result = AssimilationResult(self.closure, self.config)
         k0, s_next = 0, self.s0
-        if resume and checkpoint is not None and Path(checkpoint).exists():
-            k0, s_next = self._restore(load_checkpoint(checkpoint), result)
+        restored = self.parallel.read_checkpoint(checkpoint) if resume and checkpoint is not None else None
+        if restored is not None:
+            k0, s_next = self._restore(restored, result)
         writer = None
-        if logdir is not None:
+        if logdir is not None and self.parallel.writes:
             from .logger import TrainingLogger
 
-            writer = TrainingLogger(logdir, [r.name for r in self.fleet.runs])
+            writer = TrainingLogger(logdir, self.parallel.run_names([r.name for r in self.fleet.runs]))
         iterator = range(k0, len(self.windows))
         if progress:
             from tqdm import tqdm
@@ -474,7 +600,9 @@ class Assimilator:
             if writer is not None:
                 writer.log_window(report, self, s_next)
             if checkpoint is not None:
-                save_checkpoint(checkpoint, self._payload(k, s_next, opt_state, result))
+                payload = self._payload(k, self.parallel.rows(s_next), opt_state, result)  # the whole fleet's
+                if self.parallel.writes:
+                    save_checkpoint(checkpoint, payload)
             if on_window is not None:
                 on_window(report)
         if writer is not None:
@@ -493,12 +621,13 @@ class Assimilator:
             "next_window": k + 1,
             "config": self.config.to_json(),
             "mlp_config": self._agent_json(),
-            "runs": [r.name for r in self.fleet.runs],
+            "runs": self.parallel.run_names([r.name for r in self.fleet.runs]),
             "weights": {n: p.detach().clone() for n, p in self.closure.state_dict().items()},
             "optimizer": opt_state,
             "s_next": s_next,
             "reports": [json.dumps(asdict(r)) for r in result.reports],
             "memories": [m.to_payload() for m in self.memories],
+            "history": [{"t_s": t, "states": self.parallel.rows(x)} for t, x in self.history],
             "mechanisms": self.trained.state_dict(),
         }
 
@@ -514,14 +643,15 @@ class Assimilator:
         if ck["mlp_config"] != now:
             raise ValueError("checkpoint was written for another agent (MLP configuration):\n"
                              f"  checkpoint: {ck['mlp_config']}\n  now:        {now}")
-        names = [r.name for r in self.fleet.runs]
+        names = self.parallel.run_names([r.name for r in self.fleet.runs])
         if list(ck["runs"]) != names:
             raise ValueError(f"checkpoint is for runs {list(ck['runs'])}, not {names}")
         self.closure.load_state_dict(ck["weights"])
         result.reports.extend(WindowReport(**json.loads(r)) for r in ck["reports"])
         self.memories = [WindowMemory.from_payload(m) for m in ck.get("memories", [])]
+        self.history = [(h["t_s"], self.parallel.local_rows(h["states"])) for h in ck.get("history", [])]
         self.trained.load_state_dict(ck.get("mechanisms", {}))
-        return int(ck["next_window"]), ck["s_next"]
+        return int(ck["next_window"]), self.parallel.local_rows(ck["s_next"])
 
 
 __all__ = ["Assimilator", "AssimilationConfig", "AssimilationResult", "WindowReport", "window_edges"]

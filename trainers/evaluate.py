@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from tankode.closures import ReferenceClosure
 from tankode.fleet import Fleet
 from tankode.model import TankModel
+from tankode.run import NOISE_KEYS
 from tankode.simulation import simulate
 
 from .cost import CHANNELS, Window, cost_terms
@@ -76,4 +79,72 @@ def identification_error(closure, runs, truth_solution, during) -> dict:
             for i, n in enumerate(names)}
 
 
-__all__ = ["rmse_by_channel", "validation_cost", "closure_inputs_along", "theta_along", "closure_along", "identification_error"]
+
+
+
+def rmse_sigmas(run, solution, t0_s: float, t1_s: float, env: int = 0) -> dict[str, float]:
+    """RMSE of ``solution`` (environment ``env``) against ``run``'s samples in ``[t0_s, t1_s]``, per
+    measured channel, in units of the channel's ``noise_std`` (1 = the noise)."""
+    t = solution.t_s.numpy()
+    out = {}
+    for j, (c, k) in enumerate(zip(CHANNELS, NOISE_KEYS)):
+        tt, v = run.observations.channel(c)
+        sel = (tt >= t0_s) & (tt <= t1_s)
+        if sel.any():
+            pred = np.interp(tt[sel], t, solution.observations[env, :, j].numpy())
+            out[c] = float(np.sqrt(np.mean((pred - v[sel]) ** 2)) / run.noise_std[k])
+    return out
+
+
+@dataclass(frozen=True)
+class HoldOut:
+    """An agent trained on a run's first part and judged on its remainder (``hold_out``).
+
+    Attributes:
+        run: the run's name. split_s: the time (s) the training data end.
+        fit: RMSE per channel over the training part, in noise sigmas, of the final model
+            simulated from the run's start. held_out: the same over the remainder (a
+            prediction from the state the model reaches at the split, with no refit).
+        cost_fit: the cost J of that simulation over the training part; ``floor`` is J at the
+            noise (0.5 per measured channel).
+        window_wall_s: each window update's wall time (s); ``window_s`` the windows' length.
+        mechanisms: trained mechanism values ({id: {parameter: value}}).
+    """
+
+    run: str
+    split_s: float
+    fit: dict
+    held_out: dict
+    cost_fit: float
+    floor: float
+    window_wall_s: tuple
+    window_s: float
+    mechanisms: dict
+
+    @property
+    def real_time_factors(self) -> tuple[float, ...]:
+        """Window length over each window update's wall time."""
+        return tuple(self.window_s / max(w, 1e-9) for w in self.window_wall_s)
+
+
+def hold_out(run, config, split: float = 0.7, closure=None, on_window=None) -> HoldOut:
+    """Train an agent on the first ``split`` of ``run`` with ``config``; simulate the whole run from
+    its start with the trained model and judge both parts (``HoldOut``)."""
+    from .assimilate import Assimilator
+
+    t_split = run.t0_s + split * (run.t_end_s - run.t0_s)
+    assimilator = Assimilator([run.until(t_split)], config, closure=closure)
+    result = assimilator.run(on_window=on_window)
+    mechanisms = tuple(assimilator.model.mechanisms)
+    sol = simulate(run, result.closure, mechanisms=mechanisms, output_dt_s=30.0)
+    fit = rmse_sigmas(run, sol, run.t0_s, t_split)
+    w = Window.from_runs([run], run.t0_s - 1e-9, t_split)
+    idx = torch.searchsorted(sol.t_s, w.t_s)
+    cost_fit = float(cost_terms(sol.observations[:, idx], w).sum())
+    return HoldOut(run.name, t_split, fit, rmse_sigmas(run, sol, t_split, run.t_end_s), cost_fit, 0.5 * len(fit),
+                   tuple(r.wall_s for r in result.reports), config.window_s,
+                   {m.id: m.values_dict() for m in mechanisms})
+
+
+__all__ = ["rmse_by_channel", "validation_cost", "closure_inputs_along", "theta_along", "closure_along",
+           "identification_error", "rmse_sigmas", "HoldOut", "hold_out"]

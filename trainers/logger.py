@@ -72,9 +72,10 @@ class TrainingLogger:
             message = f"window {k}: the agent's prediction from the start could not be integrated: {err}"
             warnings.warn(message, RuntimeWarning, stacklevel=2)
             w.add_text("prediction/failed", message, k)
-        for e, name in enumerate(self.env_names):  # obs: (env, 121, 5)
-            fig = self._figure(assimilator.fleet.runs[e], t, None if obs is None else obs[e], report.t1_s)
-            w.add_figure(f"prediction/{name}", fig, k)
+        # obs: (env, 121, 5) of this process's runs (with data parallelism: rank 0's shard)
+        for e, run in enumerate(assimilator.fleet.runs):
+            fig = self._figure(run, t, None if obs is None else obs[e], report.t1_s)
+            w.add_figure(f"prediction/{run.name}", fig, k)
         w.flush()
 
     @staticmethod

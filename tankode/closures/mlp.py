@@ -118,7 +118,7 @@ class MLPConfig:
     h_ref_W_m2K: tuple[float, float, float, float] = (3.0, 10.0, 60.0, 100.0)
     span: float = math.log(100.0)
     seed: int = 0
-    base: str = "constant"
+    base: str = "natural"
 
     def __post_init__(self):
         unknown = [f for f in self.features if f not in _FEATURES]

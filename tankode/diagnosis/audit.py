@@ -7,43 +7,60 @@ engineering does it; e.g. Narasimhan & Jordache, *Data Reconciliation and Gross 
 Detection*, 2000). Per run:
 
 1. **Smooth each sensor.** Each measured channel (p_v, T_v, T_l, T_w, H_l) is fitted, per
-   operating phase (constant metered inputs), by a piecewise-linear curve with knots every
-   ``knot_s`` seconds (weighted least squares with the run's ``noise_std``; a weak curvature
-   penalty keeps knots without samples defined). The fit's covariance carries the sensor noise.
-2. **Reconstruct the inventory** at the knots with the reference equation of state (CoolProp,
-   not the model's surrogate): ``M = rho_v(p, T_v) V_v + rho_l(p, T_l) V_l`` and
-   ``E = m_v u_v + m_l u_l + C_w T_w``, the liquid volume from the level (``V_l(H_l)``). Each
-   phase is evaluated on its own branch; an ullage reading colder than saturation is evaluated
-   at saturation (and reported, step 5). The covariance of (M, E) follows by linearisation.
+   operating phase, by a piecewise-linear curve with knots every ``knot_s`` seconds (weighted
+   least squares with the run's ``noise_std``; a weak curvature penalty, in units of the
+   channel's noise, keeps knots without samples defined). The fit's covariance carries the
+   sensor noise. A phase is a span of constant metered inputs; phases shorter than
+   ``min_phase_s`` join the next one (their metered flows are still integrated exactly).
+2. **Reconstruct the inventory** at the knots with the reference equation of state (CoolProp
+   HEOS, not the model's surrogate): ``M = m_v + m_l`` and ``E = m_v u_v + m_l u_l + C_w T_w``,
+   the liquid volume from the level (``V_l(H_l)``), the ullage volume the rest of the tank.
+   The liquid is evaluated on its own branch at ``(p, T_l)`` (metastable when superheated);
+   the ullage's hydrogen at ``(p, T_v)``, or, where the ullage reads colder than saturation,
+   as saturated vapour at ``T_v`` (hydrogen cannot exceed its saturation pressure; the rest
+   of the reading is reported, step 5). The covariance of (M, E) follows by linearisation.
 3. **Subtract the metered inventory**: the integrals of the inflows and outflows (vents at the
    ullage's enthalpy, drains at the liquid's, inflows at their metered states) and of ``Q_aw``.
    What remains, ``r(t)``, is what the meters did not see.
-4. **Estimate the unmetered rates** by generalised least squares of ``r(t)`` on a straight line
-   in each phase (mass in kg/s, heat in W) and over the run. The energy fit also estimates a
-   correction of the wall heat capacity where the wall temperature is measured and changes (a
-   stated ``C_w`` that is wrong shows as heat proportional to ``dT_w/dt``; an unknown one gets a
-   prior of ``wall_capacity_prior`` relative). Where the straight line does not fit within the
-   noise (a fast transient, a state the sensors resolve badly), the standard errors are scaled
-   by the Birge ratio ``sqrt(chi2/dof)``: model error widens the interval instead of naming a leak.
+4. **Estimate the unmetered rates.** Per phase, a straight line through ``r(t)`` by generalised
+   least squares gives the phase's unmetered mass (kg/s) and heat (W). Over the run, one joint
+   GLS of the mass and energy residuals of every phase (their cross-covariance included, an
+   intercept per phase) estimates a constant unmetered mass rate and heat together with two
+   nuisances: a correction of the wall heat capacity (a stated ``C_w`` that is wrong shows as
+   heat proportional to ``dT_w/dt``; prior ``wall_capacity_prior`` relative where the run does
+   not state ``C_w``, half that where it does) and an offset of the liquid temperature sensor
+   (it shows wherever the liquid mass changes; prior ``liquid_bias_prior_K``). Where a straight
+   line does not fit a phase within the noise (a fast transient, a state the sensors resolve
+   badly), that phase's covariance is scaled by its Birge ratio ``sqrt(chi2/dof)``, and the
+   joint fit's standard errors by the joint fit's own: model error widens the interval
+   instead of naming a leak.
 5. **Test the sensors' thermodynamic consistency**: a pure ullage cannot stay colder than
-   saturation at its pressure, nor a liquid warmer. A persistent violation beyond the noise is
-   evidence of an inert gas (its partial pressure at least ``p - p_sat(T_v)``) or of a biased
-   pressure or temperature sensor; it is reported, never a reason to stop.
-6. **Name what the balances show** (``InventoryFinding``): unmetered heat (its location is not
-   observable in the whole-tank balance: it is named with the places it may enter), unmetered
-   mass loss, classified by the enthalpy it carries (``h_v``: a vapour leak; ``h_l``: a liquid
-   leak) when one hypothesis explains both balances and the others are rejected, an inflow meter
-   bias when the unmetered mass follows the metered inflows, a wall heat capacity error.
+   saturation at its pressure, nor a liquid warmer. A violation beyond the noise at
+   ``consistency_share`` or more of the audit times is evidence of an inert gas (its partial
+   pressure at least ``p - p_sat(T_v)``) or of a biased pressure or temperature sensor; it is
+   reported, never a reason to stop. Shorter violations (a sloshing transient) are listed.
+6. **Name what the balances show** (``InventoryFinding``) by gross-error detection: each
+   single cause is a hypothesis with its own signature in the two balances: unmetered heat
+   ``(0, Q t)``; a vapour leak ``-(L t, L integral h_v dt)``; a liquid leak ``-(L t, L integral
+   h_l dt)``; an inflow meter bias ``beta x`` (metered inflow mass, its enthalpy). The best
+   hypothesis is named when its rate is ``z_name`` standard errors from zero, it explains both
+   balances (its chi2 within ``chi2_separation`` of the free mass-and-heat fit) and every other
+   hypothesis is worse by ``chi2_separation`` or more. Unmetered heat is named with the three
+   places it may enter (the whole-tank balance cannot locate it); hypotheses that cannot be
+   told apart are listed together. A wrong wall heat capacity competes as one more hypothesis
+   (its correction freed from the prior); a liquid temperature offset ``z_name`` standard errors
+   from zero under the chosen explanation is named as a biased liquid temperature sensor.
 
 Without a level sensor the mass balance is not observable: the liquid volume is then taken from
 the metered mass (no leak assumed) and only the energy balance is audited. Without a wall
 temperature the wall's energy is taken to follow the liquid's temperature, with an uncertainty
 of half the ullage-liquid temperature change times the heat capacity.
 
-Limits: each phase is treated as well mixed at its mass-averaged temperature (what the format's
-sensors report); a stratified phase read by one sensor is a bias the audit cannot see. Rates are
-assumed constant over a phase (the run-wide estimate assumes them constant over the run; a test
-of that is reported as ``chi2_between_phases``).
+Limits: each phase is treated as well mixed at its measured temperature (a stratified phase read
+by one sensor is a bias the audit sees only as the liquid offset above); rates are constant over
+the run (``chi2_between_phases`` tests the heat's constancy across phases); the hydrogen is
+pure (an inert gas is seen only through the saturation test, step 5). The audit cannot tell
+where unmetered heat enters: wall, liquid or ullage.
 """
 
 from __future__ import annotations
@@ -58,6 +75,14 @@ from ..schedule import INPUT_NAMES
 
 _CH = {c: i for i, c in enumerate(OBS_CHANNELS)}
 _IN = {n: i for i, n in enumerate(INPUT_NAMES)}
+# J/kg: energy residuals are divided by this in the joint fit, so that kg and J/H_REF rows are of
+# similar size (the fit itself does not depend on it).
+_H_REF = 1.0e5
+# Central-difference steps of the inventory's Jacobian in each channel (well below the noise,
+# well above CoolProp's round-off).
+_STEP = {"p_v_Pa": 50.0, "T_v_K": 0.01, "T_l_K": 0.005, "T_w_K": 0.01, "H_l_m": 1e-4}
+HYPOTHESES = ("heat", "vapor_leak", "liquid_leak", "inflow_meter_bias", "wall_heat_capacity_error")
+HEAT_CANDIDATES = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
 
 @dataclass(frozen=True)
@@ -71,18 +96,28 @@ class AuditConfig:
     min_phase_s: float = 240.0
     # A rate is named when it is this many standard errors from zero (gross-error test).
     z_name: float = 5.0
-    # Hypotheses explaining both balances are told apart when the others' chi2 is this much larger.
+    # Hypotheses are told apart when the others' chi2 is this much larger (3 sigma for one parameter).
     chi2_separation: float = 9.0
     # Relative prior standard deviation of a wall heat capacity the run does not state.
     wall_capacity_prior: float = 0.5
+    # K; prior standard deviation of the liquid temperature sensor's offset (a weak prior: it
+    # only keeps the offset defined where the liquid mass never changes).
+    liquid_bias_prior_K: float = 2.0
     # Relative weight of the curvature penalty (per knot, in units of the channel's noise).
     smoothing: float = 1e-3
+    # Share of the audit times at which a saturation violation must hold to be evidence.
+    consistency_share: float = 0.5
+    # K; a saturation violation must exceed this as well as three standard errors.
+    consistency_margin_K: float = 0.05
 
     def __post_init__(self):
-        for name in ("knot_s", "min_phase_s", "z_name", "chi2_separation", "wall_capacity_prior", "smoothing"):
+        for name in ("knot_s", "min_phase_s", "z_name", "chi2_separation", "wall_capacity_prior", "liquid_bias_prior_K",
+                     "smoothing", "consistency_share", "consistency_margin_K"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"AuditConfig.{name} must be finite and > 0, got {v}")
+        if self.consistency_share > 1:
+            raise ValueError(f"AuditConfig.consistency_share must be in (0, 1], got {self.consistency_share}")
 
 
 @dataclass(frozen=True)
@@ -94,61 +129,136 @@ class Estimate:
 
     @property
     def z(self) -> float:
-        """value / std (0 where the std is not finite)."""
+        """value / std (0 where the std is not finite or 0)."""
         return self.value / self.std if self.std > 0 and math.isfinite(self.std) else 0.0
 
     def __str__(self) -> str:
         return f"{self.value:.3g} +- {self.std:.2g}"
 
+    def to_json(self) -> dict:
+        return {"value": self.value, "std": self.std}
+
 
 @dataclass(frozen=True)
 class PhaseAudit:
-    """Unmetered rates over one operating phase ``[t0_s, t1_s]``."""
+    """Unmetered rates over one operating phase ``[t0_s, t1_s]`` (a straight line each)."""
 
     t0_s: float
     t1_s: float
     kind: str  # the operations of the phase, e.g. "vent", "hold", "vapour inflow, sloshing"
     mass_kg_s: Estimate | None  # None: no level sensor
     heat_W: Estimate
-    inflow_kg_s: float  # metered inflow (vapour + liquid) during the phase
-    inflow_enthalpy_J_per_kg: float  # their mean specific enthalpy (0 without inflow)
+    inflow_kg_s: float  # mean metered inflow (vapour + liquid) during the phase
     h_v_J_per_kg: float  # mean enthalpy of the ullage and of the liquid over the phase: what a leak carries
     h_l_J_per_kg: float
     birge_mass: float  # sqrt(chi2 / dof) of the straight line (1 = fits within the noise)
     birge_heat: float
 
+    def to_json(self) -> dict:
+        return {"t0_s": self.t0_s, "t1_s": self.t1_s, "kind": self.kind,
+                "mass_kg_s": self.mass_kg_s.to_json() if self.mass_kg_s else None, "heat_W": self.heat_W.to_json(),
+                "inflow_kg_s": self.inflow_kg_s, "h_v_J_per_kg": self.h_v_J_per_kg, "h_l_J_per_kg": self.h_l_J_per_kg,
+                "birge_mass": self.birge_mass, "birge_heat": self.birge_heat}
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One single-cause explanation of both balances, fitted over the run.
+
+    ``chi2`` is in units of the joint fit's Birge-scaled covariance (comparable across
+    hypotheses); ``estimate`` is its rate (W, kg/s lost, or the relative inflow bias).
+    """
+
+    name: str
+    chi2: float
+    estimate: Estimate
+    z: float  # the rate's distance from "absent" in standard errors (for the wall: (factor - 1) / std)
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "chi2": self.chi2, "estimate": self.estimate.to_json(), "z": self.z}
+
 
 @dataclass(frozen=True)
 class InventoryFinding:
-    """What the balances show: a name (a mechanism id or a group), the estimate, and what it may be."""
+    """What the balances show: a name (a mechanism id or a group), the estimate, and what it may be.
 
-    name: str  # "unmetered_heat", "vapor_leak", "liquid_leak", "unmetered_mass", "inflow_meter_bias",
-    #            "wall_heat_capacity_error", "inert_gas_or_sensor_bias"
+    ``name``: ``unmetered_heat`` (candidates: the three heat leaks where it enters, none where
+    it leaves; or the hypotheses not told apart), ``vapor_leak``, ``liquid_leak``,
+    ``inflow_meter_bias``, ``unmetered_mass`` (candidates: the hypotheses not told apart),
+    ``wall_heat_capacity_error``, ``temperature_sensor_bias`` (the liquid temperature reading's
+    offset: a biased sensor, or one sitting in a layer unlike the bulk),
+    ``inert_gas_or_sensor_bias`` (a persistently cold ullage reading).
+    """
+
+    name: str
     estimate: Estimate | None
     unit: str
     candidates: tuple[str, ...]  # mechanism ids the finding is consistent with
     sentence: str
 
+    def to_json(self) -> dict:
+        return {"name": self.name, "estimate": self.estimate.to_json() if self.estimate else None, "unit": self.unit,
+                "candidates": list(self.candidates), "sentence": self.sentence}
+
 
 @dataclass(frozen=True)
 class RunAudit:
-    """The audit of one run (module docstring)."""
+    """The audit of one run (module docstring).
+
+    Attributes:
+        run: the run's name.
+        phases: per-phase straight-line estimates.
+        mass_kg_s, heat_W: run-wide unmetered mass rate (kg/s, + = gained) and heat (W, + =
+            entering) from the joint fit with both free; mass is None without a level sensor.
+        wall_capacity_factor: true C_w / stated (or assumed) C_w, as ``liquid_offset_K``; None
+            where T_w is not measured or never changes.
+        liquid_offset_K: the liquid temperature reading's offset from what the balances need
+            (estimated with the hypothesis the findings rest on, or with both rates free).
+        hypotheses: the single-cause fits of step 6, by name.
+        birge: the joint fit's Birge ratio (its standard errors are scaled by it).
+        chi2_between_phases: of the phases' heat estimates against their weighted mean.
+        consistency: sentences of step 5; ``inert_partial_pressure_Pa`` its lower bound where
+            the ullage reads persistently colder than saturation (None otherwise).
+        findings: what is named (step 6).
+        series: ``t_s`` and the measured and metered mass (kg) and energy (J) with the measured
+            ones' standard errors, for the figure.
+    """
 
     run: str
     phases: tuple[PhaseAudit, ...]
     mass_kg_s: Estimate | None
     heat_W: Estimate
-    wall_capacity_factor: Estimate | None  # true C_w / stated (or assumed) C_w
-    chi2_between_phases: float  # of the run-wide heat estimate against the phases' (dof = phases - 1)
+    wall_capacity_factor: Estimate | None
+    liquid_offset_K: Estimate
+    hypotheses: dict
+    birge: float
+    chi2_between_phases: float
     consistency: tuple[str, ...]
+    inert_partial_pressure_Pa: float | None
     findings: tuple[InventoryFinding, ...]
-    series: dict = field(repr=False)  # t_s, residual mass / energy and their std, for the figure
+    series: dict = field(repr=False)
+
+    def finding(self, name: str) -> InventoryFinding | None:
+        """The finding called ``name``, or None."""
+        return next((f for f in self.findings if f.name == name), None)
 
     def summary(self) -> str:
         """One paragraph: the run-wide rates and what is named."""
         mass = f"unmetered mass {self.mass_kg_s} kg/s" if self.mass_kg_s else "no level sensor: mass not audited"
         named = "; ".join(f.sentence for f in self.findings) or "nothing unmetered beyond the noise"
         return f"{self.run}: {mass}, unmetered heat {self.heat_W} W. {named}"
+
+    def to_json(self) -> dict:
+        return {
+            "run": self.run, "phases": [p.to_json() for p in self.phases],
+            "mass_kg_s": self.mass_kg_s.to_json() if self.mass_kg_s else None, "heat_W": self.heat_W.to_json(),
+            "wall_capacity_factor": self.wall_capacity_factor.to_json() if self.wall_capacity_factor else None,
+            "liquid_offset_K": self.liquid_offset_K.to_json(),
+            "hypotheses": {k: h.to_json() for k, h in self.hypotheses.items()}, "birge": self.birge,
+            "chi2_between_phases": self.chi2_between_phases, "consistency": list(self.consistency),
+            "inert_partial_pressure_Pa": self.inert_partial_pressure_Pa,
+            "findings": [f.to_json() for f in self.findings],
+        }
 
 
 # ----------------------------------------------------------------------------- smoothing
@@ -178,13 +288,17 @@ def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 
 def _smooth(t: np.ndarray, y: np.ndarray, sigma: float, knots: np.ndarray, smoothing: float):
-    """Values at the knots and their covariance, or None when the channel has under 3 samples."""
+    """Values at the knots and their covariance, or None when the channel has under 3 samples.
+
+    Weighted least squares on the hat basis; the penalty ``smoothing * sum (second difference /
+    sigma)^2`` only defines knots that no sample constrains.
+    """
     if len(t) < 3:
         return None
     B = _hat_basis(t, knots) / sigma
     n = len(knots)
-    D = np.diff(np.eye(n), 2, axis=0) if n >= 3 else np.zeros((0, n))
-    A = B.T @ B + smoothing * D.T @ D + 1e-12 * np.eye(n)
+    D = np.diff(np.eye(n), 2, axis=0) / sigma if n >= 3 else np.zeros((0, n))
+    A = B.T @ B + smoothing * D.T @ D + 1e-12 * np.eye(n) / sigma**2
     cov = np.linalg.inv(A)
     return cov @ (B.T @ (y / sigma)), cov
 
@@ -196,43 +310,74 @@ def _knots(a: float, b: float, spacing: float) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- thermodynamics
 class _Thermo:
-    """CoolProp states of the two phases, each on its own branch (a too-cold ullage at saturation)."""
+    """CoolProp HEOS states of each phase on its own branch (module docstring, step 2)."""
 
     def __init__(self, fluid: str):
-        from ..properties import CoolPropFluid
+        import CoolProp
 
-        self.ref = CoolPropFluid(fluid)
+        self._cp = CoolProp
+        self.name = fluid
+        self._sat = CoolProp.AbstractState("HEOS", fluid)
+        self._gas = CoolProp.AbstractState("HEOS", fluid)
+        self._gas.specify_phase(CoolProp.iphase_gas)
+        self._liq = CoolProp.AbstractState("HEOS", fluid)
+        self._liq.specify_phase(CoolProp.iphase_liquid)
 
     def T_sat(self, p: float) -> float:
-        return float(self.ref.saturation(p)["T_sat"])
+        self._sat.update(self._cp.PQ_INPUTS, p, 0.0)
+        return self._sat.T()
 
-    def phase(self, p: float, T: float, phase: str) -> tuple[float, float, float]:
-        """(rho, u, h) of ``phase`` at (p, T); a state past the branch's end is taken at saturation."""
-        T_sat = self.T_sat(p)
-        if phase == "vapor" and T < T_sat:
-            T = T_sat
-        if phase == "liquid" and T > T_sat:
-            T = T_sat
+    def p_sat(self, T: float) -> float:
+        self._sat.update(self._cp.QT_INPUTS, 0.0, T)
+        return self._sat.p()
+
+    def vapor(self, p: float, T: float) -> tuple[float, float, float]:
+        """(rho, u, h) of the ullage's hydrogen: at (p, T), or saturated vapour at T below saturation."""
+        if T <= self.T_sat(p):
+            self._sat.update(self._cp.QT_INPUTS, 1.0, T)
+            s = self._sat
+        else:
+            self._gas.update(self._cp.PT_INPUTS, p, T)
+            s = self._gas
+        return s.rhomass(), s.umass(), s.hmass()
+
+    def liquid(self, p: float, T: float) -> tuple[float, float, float]:
+        """(rho, u, h) of the liquid at (p, T) on the liquid branch; saturated liquid at p where that fails."""
         try:
-            s = self.ref.state_pT(p, T, phase)
+            self._liq.update(self._cp.PT_INPUTS, p, T)
+            s = self._liq
         except ValueError:
-            s = self.ref.state_pT(p, T_sat, phase)
-        return float(s["rho"]), float(s["u"]), float(s["h"])
+            self._sat.update(self._cp.PQ_INPUTS, p, 0.0)
+            s = self._sat
+        return s.rhomass(), s.umass(), s.hmass()
+
+    def vapor_enthalpy(self, p: float, T: float) -> float:
+        """h of injected vapour at its metered state (on the vapour branch)."""
+        return self.vapor(p, T)[2]
+
+    def liquid_enthalpy(self, p: float, T: float) -> float:
+        return self.liquid(p, T)[2]
 
 
 def _inventory(thermo: _Thermo, V_tank: float, x: np.ndarray, V_l: float, C_w: float, wall_T: float):
-    """(M, E, m_v, h_v, h_l) at the channel values ``x`` (p, T_v, T_l, T_w, H_l) with liquid volume ``V_l``."""
+    """(M, E, h_v, h_l) at channel values ``x`` (p, T_v, T_l, T_w, H_l) with liquid volume ``V_l``."""
     p, T_v, T_l = x[0], x[1], x[2]
-    rv, uv, hv = thermo.phase(p, T_v, "vapor")
-    rl, ul, hl = thermo.phase(p, T_l, "liquid")
+    rv, uv, hv = thermo.vapor(p, T_v)
+    rl, ul, hl = thermo.liquid(p, T_l)
     m_v, m_l = rv * (V_tank - V_l), rl * V_l
     return m_v + m_l, m_v * uv + m_l * ul + C_w * wall_T, hv, hl
+
+
+def _liquid_volume_for_mass(thermo: _Thermo, V_tank: float, x: np.ndarray, M: float) -> float:
+    rv = thermo.vapor(x[0], x[1])[0]
+    rl = thermo.liquid(x[0], x[2])[0]
+    return float(np.clip((M - rv * V_tank) / (rl - rv), 0.0, V_tank))
 
 
 def _gls(X: np.ndarray, r: np.ndarray, C: np.ndarray):
     """Generalised least squares: coefficients, their covariance, chi2 and dof."""
     n, k = X.shape
-    C = C + np.eye(n) * 1e-12 * max(float(np.trace(C)) / n, 1e-300)
+    C = C + np.eye(n) * 1e-10 * max(float(np.trace(C)) / n, 1e-300)
     L = np.linalg.cholesky(C)
     Xw = np.linalg.solve(L, X)
     rw = np.linalg.solve(L, r)
@@ -253,6 +398,165 @@ def _kind(u: np.ndarray) -> str:
     return ", ".join(parts) or "hold"
 
 
+# ----------------------------------------------------------------------------- one phase
+@dataclass
+class _PhaseData:
+    """Everything the run-wide fit needs from one phase (knot times relative to the phase start)."""
+
+    tt: np.ndarray
+    rM: np.ndarray | None  # None: no level sensor
+    rE: np.ndarray
+    C: np.ndarray  # covariance of [M; E / H_REF] (or of E / H_REF alone), Birge-scaled
+    J_Tl: np.ndarray  # d[M; E / H_REF] / dT_l at the knots (a liquid sensor offset's signature)
+    wall: np.ndarray  # -C_w T_w / H_REF at the knots (a wall capacity correction's signature), 0 without T_w
+    cols: dict  # hypothesis signatures [M; E / H_REF] at the knots
+
+
+def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: np.ndarray, hl_k: np.ndarray):
+    """Cumulative metered mass and energy at the knots, and the hypotheses' cumulative signatures.
+
+    The schedule's pieces inside each knot interval are integrated exactly; the ullage's and the
+    liquid's enthalpies (vent, drain, leaks) and the pressure (liquid fill) are interpolated
+    linearly between the knots (trapezoid on each piece).
+    """
+    n = len(knots)
+    out = {k: np.zeros(n) for k in ("M", "E", "in_M", "in_E", "Hv", "Hl", "inflow_time")}
+    for k in range(n - 1):
+        acc = dict.fromkeys(out, 0.0)
+        for s0, s1, u in sched.segments(knots[k], knots[k + 1]):
+            dt = s1 - s0
+            w0, w1 = ((s0 - knots[k]) / (knots[k + 1] - knots[k]), (s1 - knots[k]) / (knots[k + 1] - knots[k]))
+            hv = 0.5 * ((1 - w0) * hv_k[k] + w0 * hv_k[k + 1] + (1 - w1) * hv_k[k] + w1 * hv_k[k + 1])
+            hl = 0.5 * ((1 - w0) * hl_k[k] + w0 * hl_k[k + 1] + (1 - w1) * hl_k[k] + w1 * hl_k[k + 1])
+            wm = 0.5 * (w0 + w1)
+            p_mid = (1 - wm) * p_k[k] + wm * p_k[k + 1]
+            m_vin, m_vout = u[_IN["mdot_v_in_kg_s"]], u[_IN["mdot_v_out_kg_s"]]
+            m_lin, m_lout = u[_IN["mdot_l_in_kg_s"]], u[_IN["mdot_l_out_kg_s"]]
+            h_vin = thermo.vapor_enthalpy(u[_IN["p_v_in_Pa"]], u[_IN["T_v_in_K"]]) if m_vin > 0 else 0.0
+            h_lin = thermo.liquid_enthalpy(p_mid, u[_IN["T_l_in_K"]]) if m_lin > 0 else 0.0
+            acc["M"] += (m_vin + m_lin - m_vout - m_lout) * dt
+            acc["E"] += (m_vin * h_vin + m_lin * h_lin - m_vout * hv - m_lout * hl + u[_IN["Q_aw_W"]]) * dt
+            acc["in_M"] += (m_vin + m_lin) * dt
+            acc["in_E"] += (m_vin * h_vin + m_lin * h_lin) * dt
+            acc["inflow_time"] += dt if m_vin + m_lin > 0 else 0.0
+            acc["Hv"] += hv * dt
+            acc["Hl"] += hl * dt
+        for key in out:
+            out[key][k + 1] = out[key][k] + acc[key]
+    return out
+
+
+def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank: float, C_w: float,
+                 has_level: bool, has_wall: bool, M_start: float | None, config: AuditConfig):
+    """One phase: (PhaseAudit, _PhaseData, figure rows, consistency rows, the last knot's M), or None."""
+    obs = run.observations
+    spacing = config.knot_s
+    for c in ("p_v_Pa", "T_v_K", "T_l_K") + (("H_l_m",) if has_level else ()) + (("T_w_K",) if has_wall else ()):
+        tc, _ = obs.channel(c)
+        tc = tc[(tc >= a) & (tc <= b)]
+        if len(tc) >= 2:  # knots no closer than three samples of the sparsest channel the audit needs
+            spacing = max(spacing, 3 * float(np.median(np.diff(tc))))
+    knots = _knots(a, b, spacing)
+    fits = {}
+    for c in OBS_CHANNELS:
+        tc, yc = obs.channel(c)
+        sel = (tc >= a) & (tc <= b)
+        fits[c] = _smooth(tc[sel], yc[sel], run.noise_std[NOISE_KEYS[_CH[c]]], knots, config.smoothing) \
+            if c in obs.measured_channels else None
+    if any(fits[c] is None for c in ("p_v_Pa", "T_v_K", "T_l_K")):
+        return None  # too few samples in this phase to audit it
+    level_ok = has_level and fits["H_l_m"] is not None
+    wall_ok = has_wall and fits["T_w_K"] is not None
+    n = len(knots)
+    vals = np.zeros((n, 5))
+    covs = [np.zeros((n, n)) for _ in range(5)]
+    for c, j in _CH.items():
+        if fits[c] is not None:
+            vals[:, j], covs[j] = fits[c]
+
+    import torch
+
+    def volumes(H: np.ndarray) -> np.ndarray:
+        return geometry.volume_at_level(torch.as_tensor(H, dtype=torch.float64)).numpy().astype(float)
+
+    # Metered mass at the knots, for the liquid volume without a level sensor (no leak assumed).
+    sched = run.inputs
+    metered_M = np.concatenate([[0.0], np.cumsum([sum((s[2][_IN["mdot_v_in_kg_s"]] + s[2][_IN["mdot_l_in_kg_s"]]
+                                                       - s[2][_IN["mdot_v_out_kg_s"]] - s[2][_IN["mdot_l_out_kg_s"]])
+                                                      * (s[1] - s[0]) for s in sched.segments(k0, k1))
+                                                  for k0, k1 in zip(knots[:-1], knots[1:])])])
+    if not level_ok and M_start is None:
+        x0 = vals[0]
+        M_start = _inventory(thermo, V_tank, x0, run.initial.fill_ratio * V_tank, C_w, x0[3] if wall_ok else x0[2])[0]
+    V_l = volumes(vals[:, 4]) if level_ok else np.array(
+        [_liquid_volume_for_mass(thermo, V_tank, vals[k], M_start + metered_M[k]) for k in range(n)])
+    Ms, Es, hvs, hls = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    Jm, Je = np.zeros((n, 5)), np.zeros((n, 5))
+    for k in range(n):
+        x = vals[k]
+        Ms[k], Es[k], hvs[k], hls[k] = _inventory(thermo, V_tank, x, V_l[k], C_w, x[3] if wall_ok else x[2])
+        for j, c in enumerate(OBS_CHANNELS):
+            if fits[c] is None or (c == "H_l_m" and not level_ok) or (c == "T_w_K" and not wall_ok):
+                continue
+            step = _STEP[c]
+            xp, xm = x.copy(), x.copy()
+            xp[j] += step
+            xm[j] -= step
+            Vp, Vm = (volumes(np.array([xp[4], xm[4]])) if c == "H_l_m" else (V_l[k], V_l[k]))
+            Mp, Ep, _, _ = _inventory(thermo, V_tank, xp, float(Vp), C_w, xp[3] if wall_ok else xp[2])
+            Mm, Em, _, _ = _inventory(thermo, V_tank, xm, float(Vm), C_w, xm[3] if wall_ok else xm[2])
+            Jm[k, j], Je[k, j] = (Mp - Mm) / (2 * step), (Ep - Em) / (2 * step)
+    met = _metered(thermo, sched, knots, vals[:, 0], hvs, hls)
+    rM, rE = Ms - Ms[0] - met["M"], Es - Es[0] - met["E"]
+    # Covariances of (M, E) from the channels' (independent) fit covariances.
+    CM = sum(np.outer(Jm[:, j], Jm[:, j]) * covs[j] for j in range(5))
+    CE = sum(np.outer(Je[:, j], Je[:, j]) * covs[j] for j in range(5))
+    CME = sum(np.outer(Jm[:, j], Je[:, j]) * covs[j] for j in range(5))
+    if not wall_ok:  # the wall's energy taken to follow the liquid: half the ullage-liquid gap as its std
+        gap = C_w * 0.5 * np.abs((vals[:, 1] - vals[0, 1]) - (vals[:, 2] - vals[0, 2]))
+        CE = CE + np.diag(gap**2 + (1e-6 * C_w) ** 2)
+    tt = knots - a
+    X = np.stack([np.ones(n), tt], axis=1)
+    mass_est, birge_m = None, 1.0
+    if level_ok:
+        cm, vm, chi_m, dof_m = _gls(X, rM, CM)
+        birge_m = _birge(chi_m, dof_m)
+        mass_est = Estimate(float(cm[1]), float(math.sqrt(max(vm[1, 1], 0.0))) * birge_m)
+    ce, ve, chi_e, dof_e = _gls(X, rE, CE)
+    birge_e = _birge(chi_e, dof_e)
+    heat_est = Estimate(float(ce[1]), float(math.sqrt(max(ve[1, 1], 0.0))) * birge_e)
+    inflow = met["in_M"][-1] / (b - a)
+    phase = PhaseAudit(a, b, _kind(sched.at(a)), mass_est, heat_est, float(inflow),
+                       float(hvs.mean()), float(hls.mean()), birge_m, birge_e)
+    # The joint (mass, energy / H_REF) block, each part scaled by its line's Birge ratio.
+    E_scale = birge_e / _H_REF
+    wall = -C_w * (vals[:, 3] if wall_ok else np.zeros(n)) / _H_REF
+    zeros = np.zeros(n)
+    sig = {"heat": (zeros, tt / _H_REF), "vapor_leak": (-tt, -met["Hv"] / _H_REF),
+           "liquid_leak": (-tt, -met["Hl"] / _H_REF), "inflow_meter_bias": (met["in_M"], met["in_E"] / _H_REF),
+           "mass": (tt, zeros)}
+    if level_ok:
+        C = np.block([[CM * birge_m**2, CME * birge_m * E_scale], [CME.T * birge_m * E_scale, CE * E_scale**2]])
+        data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], Je[:, 2] / _H_REF]),
+                          np.concatenate([zeros, wall]), {k: np.concatenate(v) for k, v in sig.items()})
+    else:
+        data = _PhaseData(tt, None, rE, CE * E_scale**2, Je[:, 2] / _H_REF, wall, {k: v[1] for k, v in sig.items()})
+    fig = {"t_s": knots, "M": Ms, "M_std": np.sqrt(np.clip(np.diag(CM), 0, None)) if level_ok else np.full(n, np.nan),
+           "E": Es, "E_std": np.sqrt(np.clip(np.diag(CE), 0, None)), "metered_M": met["M"], "metered_E": met["E"],
+           "level_ok": level_ok}
+    # Step 5: saturation consistency at the knots.
+    cons = []
+    for k in range(n):
+        p, T_v, T_l = vals[k, 0], vals[k, 1], vals[k, 2]
+        T_sat = thermo.T_sat(p)
+        dTdp = (thermo.T_sat(p + 100.0) - thermo.T_sat(p - 100.0)) / 200.0
+        sv = math.sqrt(covs[1][k, k] + covs[0][k, k] * dTdp**2)
+        sl = math.sqrt(covs[2][k, k] + covs[0][k, k] * dTdp**2)
+        cons.append((knots[k], p, T_v, T_l, T_sat, T_v < T_sat - max(3 * sv, config.consistency_margin_K),
+                     T_l > T_sat + max(3 * sl, config.consistency_margin_K)))
+    return phase, data, fig, cons, (Ms[-1] if not level_ok else None)
+
+
 # ----------------------------------------------------------------------------- the audit
 def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_J_per_K: float | None = None,
               wall_capacity_assumed: bool = False) -> RunAudit:
@@ -266,7 +570,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
         wall_capacity_assumed: the value is an estimate (gets the ``wall_capacity_prior``).
 
     Raises:
-        ValueError: the run does not measure p_v, T_v and T_l (the inventory needs them).
+        ValueError: the run does not measure p_v, T_v and T_l, or no phase has enough samples.
     """
     from ..wall import resolve_wall_heat_capacity
 
@@ -284,329 +588,266 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     has_level = "H_l_m" in run.observations.measured_channels
     has_wall = "T_w_K" in run.observations.measured_channels
     thermo = _Thermo(run.fluid)
-    sched = run.inputs
 
-    def volume_at(H: float) -> float:
-        import torch
-
-        return float(geometry.volume_at_level(torch.tensor(H, dtype=torch.float64)))
-
-    phases, rows_M, rows_E = [], [], []
-    series = {k: [] for k in ("t_s", "mass_kg", "mass_std", "energy_J", "energy_std")}
-    consistency_cold, consistency_hot = [], []
-    M_prev_end = None
+    phases, datas, figs, cons = [], [], [], []
+    M_end = None
     for a, b in _phases(run, config.min_phase_s):
-        t_obs = run.observations.t_s
-        # Knots no closer than three samples of the sparsest channel the audit needs.
-        spacing = config.knot_s
-        for c in ("p_v_Pa", "T_v_K", "T_l_K") + (("H_l_m",) if has_level else ()) + (("T_w_K",) if has_wall else ()):
-            tc, _ = run.observations.channel(c)
-            tc = tc[(tc >= a) & (tc <= b)]
-            if len(tc) >= 2:
-                spacing = max(spacing, 3 * float(np.median(np.diff(tc))))
-        knots = _knots(a, b, spacing)
-        fits = {}
-        for c in OBS_CHANNELS:
-            tc, yc = run.observations.channel(c)
-            sel = (tc >= a) & (tc <= b)
-            fits[c] = _smooth(tc[sel], yc[sel], run.noise_std[NOISE_KEYS[_CH[c]]], knots, config.smoothing) \
-                if c in run.observations.measured_channels else None
-        if any(fits[c] is None for c in ("p_v_Pa", "T_v_K", "T_l_K")):
-            continue  # too few samples in this phase to audit it
-        level_ok = has_level and fits["H_l_m"] is not None
-        wall_ok = has_wall and fits["T_w_K"] is not None
-        u = sched.at(a)
-        n = len(knots)
-        vals = np.zeros((n, 5))
-        covs = [np.zeros((n, n)) for _ in range(5)]
-        for c, j in _CH.items():
-            if fits[c] is not None:
-                vals[:, j], covs[j] = fits[c]
-        # Metered mass flows in the phase (constant) and the inflow enthalpies.
-        m_vin, m_vout = u[_IN["mdot_v_in_kg_s"]], u[_IN["mdot_v_out_kg_s"]]
-        m_lin, m_lout = u[_IN["mdot_l_in_kg_s"]], u[_IN["mdot_l_out_kg_s"]]
-        h_vin = thermo.ref.state_pT(u[_IN["p_v_in_Pa"]], u[_IN["T_v_in_K"]], "vapor")["h"].item() if m_vin > 0 else 0.0
-        # Liquid volume: from the level, or (no level sensor) from the metered mass.
-        M_meter0 = None
-        if not level_ok:
-            if M_prev_end is None:
-                x0 = vals[0]
-                V_l0 = run.initial.fill_ratio * V_tank
-                M_meter0 = _inventory(thermo, V_tank, x0, V_l0, C_w, x0[3] if wall_ok else x0[2])[0]
-        Ms, Es, hvs, hls, Jm, Je = [], [], [], [], [], []
-        dt_k = np.diff(knots, prepend=knots[0])
-        cum_M_k = 0.0
-        for k in range(n):
-            x = vals[k].copy()
-            wall_T = x[3] if wall_ok else x[2]
-            if k > 0:
-                cum_M_k += (m_vin + m_lin - m_vout - m_lout) * dt_k[k]
-            if level_ok:
-                V_l = volume_at(x[4])
-            else:
-                target = (M_meter0 if M_meter0 is not None else M_prev_end) + cum_M_k
-                V_l = _liquid_volume_for_mass(thermo, V_tank, x, target)
-            M, E, hv, hl = _inventory(thermo, V_tank, x, V_l, C_w, wall_T)
-            Ms.append(M), Es.append(E), hvs.append(hv), hls.append(hl)
-            # Jacobian of (M, E) in the channels by central differences.
-            gm, ge = np.zeros(5), np.zeros(5)
-            for j, c in enumerate(OBS_CHANNELS):
-                if fits[c] is None or (c == "H_l_m" and not level_ok) or (c == "T_w_K" and not wall_ok):
-                    continue
-                step = {"p_v_Pa": 50.0, "T_v_K": 0.01, "T_l_K": 0.005, "T_w_K": 0.01, "H_l_m": 1e-4}[c]
-                xp, xm = x.copy(), x.copy()
-                xp[j] += step
-                xm[j] -= step
-                V_p = volume_at(xp[4]) if level_ok else V_l
-                V_m = volume_at(xm[4]) if level_ok else V_l
-                Mp, Ep, _, _ = _inventory(thermo, V_tank, xp, V_p, C_w, xp[3] if wall_ok else xp[2])
-                Mm, Em, _, _ = _inventory(thermo, V_tank, xm, V_m, C_w, xm[3] if wall_ok else xm[2])
-                gm[j], ge[j] = (Mp - Mm) / (2 * step), (Ep - Em) / (2 * step)
-            Jm.append(gm), Je.append(ge)
-        Ms, Es, Jm, Je = np.array(Ms), np.array(Es), np.array(Jm), np.array(Je)
-        hvs, hls = np.array(hvs), np.array(hls)
-        # Metered cumulative inventory over the phase (trapezoid for state-dependent enthalpies).
-        flow_M = np.full(n, m_vin + m_lin - m_vout - m_lout)
-        h_lin = np.array([thermo.ref.state_pT(vals[k, 0], u[_IN["T_l_in_K"]], "liquid")["h"].item()
-                          for k in range(n)]) if m_lin > 0 else np.zeros(n)
-        flow_E = m_vin * h_vin + m_lin * h_lin - m_vout * hvs - m_lout * hls + u[_IN["Q_aw_W"]]
-        cumM = np.concatenate([[0.0], np.cumsum(0.5 * (flow_M[1:] + flow_M[:-1]) * np.diff(knots))])
-        cumE = np.concatenate([[0.0], np.cumsum(0.5 * (flow_E[1:] + flow_E[:-1]) * np.diff(knots))])
-        rM = Ms - Ms[0] - cumM
-        rE = Es - Es[0] - cumE
-        CM = sum(np.outer(Jm[:, j], Jm[:, j]) * covs[j] for j in range(5))
-        CE = sum(np.outer(Je[:, j], Je[:, j]) * covs[j] for j in range(5))
-        if not wall_ok:  # the wall's energy taken to follow the liquid: half the ullage-liquid gap as its std
-            gap = C_w * 0.5 * np.abs((vals[:, 1] - vals[0, 1]) - (vals[:, 2] - vals[0, 2]))
-            CE = CE + np.diag(gap**2)
-        tt = knots - a
-        X = np.stack([np.ones(n), tt], axis=1)
-        mass_est = None
-        birge_m = 1.0
-        if level_ok:
-            cm, vm, chi_m, dof_m = _gls(X, rM, CM)
-            birge_m = _birge(chi_m, dof_m)
-            mass_est = Estimate(float(cm[1]), float(math.sqrt(max(vm[1, 1], 0.0))) * birge_m)
-            rows_M.append((X, rM, CM))
-        ce, ve, chi_e, dof_e = _gls(X, rE, CE)
-        birge_e = _birge(chi_e, dof_e)
-        heat_est = Estimate(float(ce[1]), float(math.sqrt(max(ve[1, 1], 0.0))) * birge_e)
-        dT_w = (vals[:, 3] - vals[0, 3]) if wall_ok else np.zeros(n)
-        rows_E.append((tt, rE, CE, C_w * dT_w, birge_e))
-        m_in = m_vin + m_lin
-        phases.append(PhaseAudit(a, b, _kind(u), mass_est, heat_est, float(m_in),
-                                 float((m_vin * h_vin + m_lin * float(h_lin.mean())) / m_in) if m_in > 0 else 0.0,
-                                 float(hvs.mean()), float(hls.mean()), birge_m, birge_e))
-        # Figure: residuals since the run's start (phases joined at their ends).
-        offM = series["mass_kg"][-1] if series["mass_kg"] else 0.0
-        offE = series["energy_J"][-1] if series["energy_J"] else 0.0
-        series["t_s"].extend(knots.tolist())
-        series["mass_kg"].extend((offM + rM).tolist() if level_ok else [float("nan")] * n)
-        series["mass_std"].extend(np.sqrt(np.clip(np.diag(CM), 0, None)).tolist() if level_ok else [float("nan")] * n)
-        series["energy_J"].extend((offE + rE).tolist())
-        series["energy_std"].extend(np.sqrt(np.clip(np.diag(CE), 0, None)).tolist())
-        M_prev_end = Ms[-1]
-        # Step 5: thermodynamic consistency at the knots.
-        for k in range(n):
-            p, T_v, T_l = vals[k, 0], vals[k, 1], vals[k, 2]
-            T_sat = thermo.T_sat(p)
-            sv = math.sqrt(covs[1][k, k] + (covs[0][k, k] * _dTsat_dp(thermo, p) ** 2))
-            sl = math.sqrt(covs[2][k, k] + (covs[0][k, k] * _dTsat_dp(thermo, p) ** 2))
-            if T_v < T_sat - max(3 * sv, 0.05):
-                consistency_cold.append((knots[k], T_sat - T_v, p, T_v))
-            if T_l > T_sat + max(3 * sl, 0.05):
-                consistency_hot.append((knots[k], T_l - T_sat, p, T_l))
+        got = _audit_phase(run, a, b, thermo, geometry, V_tank, C_w, has_level, has_wall, M_end, config)
+        if got is None:
+            continue
+        phase, data, fig, c, M_end = got
+        phases.append(phase), datas.append(data), figs.append(fig), cons.extend(c)
     if not phases:
         raise ValueError(f"run {run.name!r}: no operating phase has enough samples of p_v, T_v and T_l to audit")
-
-    mass = _combine([p.mass_kg_s for p in phases]) if has_level else None
-    heat_run, cw_factor, chi2_between = _run_heat(rows_E, phases, C_w, wall_capacity_assumed, config)
-    consistency = _consistency_sentences(thermo, consistency_cold, consistency_hot, series)
-    findings = _name(run, phases, mass, heat_run, cw_factor, consistency_cold, thermo, config, has_level)
-    return RunAudit(run.name, tuple(phases), mass, heat_run, cw_factor, chi2_between, tuple(consistency),
-                    tuple(findings), {k: np.asarray(v) for k, v in series.items()})
-
-
-def _liquid_volume_for_mass(thermo: _Thermo, V_tank: float, x: np.ndarray, M: float) -> float:
-    rv, _, _ = thermo.phase(x[0], x[1], "vapor")
-    rl, _, _ = thermo.phase(x[0], x[2], "liquid")
-    return float(np.clip((M - rv * V_tank) / (rl - rv), 0.0, V_tank))
-
-
-def _dTsat_dp(thermo: _Thermo, p: float) -> float:
-    return (thermo.T_sat(p + 100.0) - thermo.T_sat(p - 100.0)) / 200.0
-
-
-def _combine(estimates) -> Estimate | None:
-    est = [e for e in estimates if e is not None and e.std > 0 and math.isfinite(e.std)]
-    if not est:
-        return None
-    w = np.array([1 / e.std**2 for e in est])
-    v = np.array([e.value for e in est])
-    mean = float((w * v).sum() / w.sum())
-    std = float(1 / math.sqrt(w.sum()))
-    chi2 = float((w * (v - mean) ** 2).sum())
-    return Estimate(mean, std * _birge(chi2, max(len(est) - 1, 1)))
-
-
-def _run_heat(rows_E, phases, C_w, assumed, config):
-    """Run-wide unmetered heat and wall-capacity correction by one GLS over every phase."""
-    n_ph = len(rows_E)
-    blocks, rs, Xs = [], [], []
-    use_wall = any(np.ptp(row[3]) > 0 for row in rows_E)
-    k_extra = 2 if use_wall else 1
-    for i, (tt, rE, CE, wall_term, birge) in enumerate(rows_E):
-        X = np.zeros((len(tt), n_ph + k_extra))
-        X[:, i] = 1.0
-        X[:, n_ph] = tt
-        if use_wall:
-            X[:, n_ph + 1] = wall_term
-        Xs.append(X)
-        rs.append(rE)
-        blocks.append(CE * birge**2)
-    X = np.concatenate(Xs)
-    r = np.concatenate(rs)
-    C = np.zeros((len(r), len(r)))
-    o = 0
-    for B in blocks:
-        C[o:o + len(B), o:o + len(B)] = B
-        o += len(B)
-    if use_wall:
-        # A prior on the wall heat capacity's correction: tight where the run states it, wide where assumed.
-        prior = config.wall_capacity_prior if assumed else 0.5 * config.wall_capacity_prior
-        X = np.vstack([X, np.eye(1, n_ph + k_extra, n_ph + 1)])
-        r = np.append(r, 0.0)
-        C2 = np.zeros((len(r), len(r)))
-        C2[:-1, :-1] = C
-        C2[-1, -1] = prior**2
-        C = C2
-    coef, cov, chi2, dof = _gls(X, r, C)
-    cov = cov * _birge(chi2, dof) ** 2  # the joint line's misfit widens both estimates
-    heat = Estimate(float(coef[n_ph]), float(math.sqrt(max(cov[n_ph, n_ph], 0.0))))
-    factor = Estimate(1.0 + float(coef[n_ph + 1]), float(math.sqrt(max(cov[n_ph + 1, n_ph + 1], 0.0)))) if use_wall else None
+    mass_level = all(d.rM is not None for d in datas)
+    if not mass_level:  # a phase without level samples: audit the energy alone everywhere
+        datas = [_energy_only(d) for d in datas]
+    fit = _RunFit(datas, has_wall, wall_capacity_assumed, config)
+    general = fit.solve(["mass", "heat"] if mass_level else ["heat"])
+    B = general.birge
+    mass = Estimate(*general.rate("mass")) if mass_level else None
+    heat = Estimate(*general.rate("heat"))
+    sols, hyps = {}, {}
+    for name in HYPOTHESES:
+        if name == "inflow_meter_bias" and not fit.has_inflow:
+            continue
+        if name in ("vapor_leak", "liquid_leak", "inflow_meter_bias") and not mass_level:
+            continue
+        if name == "wall_heat_capacity_error" and not fit.use_wall:
+            continue
+        s = sols[name] = fit.solve([name])
+        value, std = s.rate(name, B)
+        shown = 1.0 + value if name == "wall_heat_capacity_error" else value
+        hyps[name] = Hypothesis(name, s.chi2 / B**2, Estimate(shown, std), value / std if std > 0 else 0.0)
     per = [p.heat_W for p in phases]
     w = np.array([1 / e.std**2 for e in per])
     v = np.array([e.value for e in per])
     chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
-    return heat, factor, chi2_between
+    consistency, inert = _consistency(thermo, cons, config)
+    findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level)
+    # The nuisances as the explanation the findings rest on estimates them.
+    s = sols[chosen] if chosen in sols else general
+    cw = Estimate(1.0 + s.value("wall"), s.std("wall", B)) if fit.use_wall else None
+    offset = Estimate(s.value("T_l"), s.std("T_l", B))
+    if abs(offset.z) >= config.z_name:
+        findings.insert(0, InventoryFinding(
+            "temperature_sensor_bias", offset, "K", ("temperature_sensor_bias",),
+            f"the liquid temperature reads {offset.value:+.3g} +- {offset.std:.2g} K off the temperature the liquid's "
+            "mass and energy changes need: a biased liquid temperature sensor (or one sitting in a layer warmer or "
+            "colder than the bulk)"))
+    series = _series(figs)
+    return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
+                    tuple(s for s, _ in consistency), inert, tuple(findings), series)
 
 
-def _consistency_sentences(thermo, cold, hot, series) -> list[str]:
-    out = []
+def _energy_only(d: _PhaseData) -> _PhaseData:
+    if d.rM is None:
+        return d
+    n = len(d.tt)
+    return _PhaseData(d.tt, None, d.rE, d.C[n:, n:], d.J_Tl[n:], d.wall[n:], {k: v[n:] for k, v in d.cols.items()})
+
+
+class _Solution:
+    def __init__(self, names, coef, cov, chi2, dof, index):
+        self.names, self.coef, self.cov, self.chi2, self.dof, self.index = names, coef, cov, chi2, dof, index
+        self.birge = _birge(chi2, dof)
+
+    def value(self, name: str) -> float:
+        return float(self.coef[self.index[name]])
+
+    def std(self, name: str, birge: float | None = None) -> float:
+        i = self.index[name]
+        return float(math.sqrt(max(self.cov[i, i], 0.0))) * (self.birge if birge is None else birge)
+
+    def rate(self, name: str, birge: float | None = None) -> tuple[float, float]:
+        return self.value(name), self.std(name, birge)
+
+
+class _RunFit:
+    """The joint GLS of every phase's residuals (module docstring, step 4) with chosen rate columns."""
+
+    def __init__(self, datas: list[_PhaseData], has_wall: bool, assumed: bool, config: AuditConfig):
+        self.datas = datas
+        self.use_wall = has_wall and any(np.ptp(d.wall) > 0 for d in datas)
+        self.has_inflow = any(np.ptp(d.cols["inflow_meter_bias"]) > 0 for d in datas)
+        self.r = np.concatenate([np.concatenate([d.rM, d.rE / _H_REF]) if d.rM is not None else d.rE / _H_REF
+                                 for d in datas])
+        n = len(self.r)
+        self.C = np.zeros((n, n))
+        o = 0
+        for d in datas:
+            m = len(d.C)
+            self.C[o:o + m, o:o + m] = d.C
+            o += m
+        # Intercepts: one per phase and balance.
+        cols, o = [], 0
+        for d in datas:
+            blocks = 2 if d.rM is not None else 1
+            for j in range(blocks):
+                c = np.zeros(n)
+                c[o + j * len(d.tt):o + (j + 1) * len(d.tt)] = 1.0
+                cols.append(c)
+            o += blocks * len(d.tt)
+        self.base = cols
+        self.nuisance = {"T_l": np.concatenate([d.J_Tl for d in datas])}
+        self.prior = {"T_l": config.liquid_bias_prior_K}
+        if self.use_wall:
+            self.nuisance["wall"] = np.concatenate([d.wall for d in datas])
+            self.prior["wall"] = config.wall_capacity_prior if assumed else 0.5 * config.wall_capacity_prior
+
+    def column(self, name: str) -> np.ndarray:
+        return np.concatenate([d.cols[name] for d in self.datas])
+
+    def solve(self, rates: list[str]) -> _Solution:
+        """Fit with the rate columns ``rates``; ``"wall_heat_capacity_error"`` frees the wall correction's prior."""
+        free_wall = "wall_heat_capacity_error" in rates
+        rates = [k for k in rates if k != "wall_heat_capacity_error"]
+        names = list(self.nuisance) + rates
+        X = np.column_stack(self.base + [self.nuisance[k] for k in self.nuisance] + [self.column(k) for k in rates])
+        index = {k: len(self.base) + i for i, k in enumerate(names)}
+        if free_wall:
+            index["wall_heat_capacity_error"] = index["wall"]
+        prior = {k: v for k, v in self.prior.items() if not (free_wall and k == "wall")}
+        # Priors on the nuisances as pseudo-observations.
+        k = X.shape[1]
+        P = np.zeros((len(prior), k))
+        for i, name in enumerate(prior):
+            P[i, index[name]] = 1.0
+        Xa = np.vstack([X, P])
+        ra = np.concatenate([self.r, np.zeros(len(prior))])
+        Ca = np.zeros((len(ra), len(ra)))
+        Ca[:len(self.r), :len(self.r)] = self.C
+        Ca[len(self.r):, len(self.r):] = np.diag([v**2 for v in prior.values()])
+        coef, cov, chi2, _ = _gls(Xa, ra, Ca)
+        dof = max(len(self.r) - k, 1)
+        return _Solution(names, coef, cov, chi2, dof, index)
+
+
+def _series(figs) -> dict:
+    """Measured and metered inventories over the run (the metered one starts at the first measurement)."""
+    out = {k: [] for k in ("t_s", "mass_kg", "mass_std", "mass_metered_kg", "energy_J", "energy_std", "energy_metered_J")}
+    offM = offE = None
+    for f in figs:
+        if offM is None:
+            offM, offE = f["M"][0], f["E"][0]
+        out["t_s"].extend(f["t_s"].tolist())
+        out["mass_kg"].extend(f["M"].tolist() if f["level_ok"] else [float("nan")] * len(f["t_s"]))
+        out["mass_std"].extend(f["M_std"].tolist())
+        out["mass_metered_kg"].extend((offM + f["metered_M"]).tolist())
+        out["energy_J"].extend(f["E"].tolist())
+        out["energy_std"].extend(f["E_std"].tolist())
+        out["energy_metered_J"].extend((offE + f["metered_E"]).tolist())
+        offM, offE = offM + f["metered_M"][-1], offE + f["metered_E"][-1]
+    return {k: np.asarray(v, float) for k, v in out.items()}
+
+
+def _consistency(thermo: _Thermo, rows, config: AuditConfig) -> tuple[list[tuple[str, bool]], float | None]:
+    """Sentences (with whether each is persistent) and the inert gas's partial-pressure lower bound."""
+    out, inert = [], None
+    n = len(rows)
+    cold = [r for r in rows if r[5]]
+    hot = [r for r in rows if r[6]]
     if cold:
-        t, dT, p, T_v = max(cold, key=lambda c: c[1])
-        p_sat = _p_sat(thermo, T_v)
-        out.append(f"the ullage reads colder than saturation at the measured pressure at {len(cold)} of "
-                   f"{len(series['t_s'])} audit times, by up to {dT:.2f} K (t = {t:.0f} s): a pure vapour would "
-                   f"condense; an inert gas with a partial pressure of at least {p - p_sat:.4g} Pa, or a biased "
-                   "pressure or ullage temperature sensor")
+        persistent = len(cold) >= config.consistency_share * n
+        bound = [r[1] - thermo.p_sat(r[2]) for r in cold]
+        t, p, T_v, _, T_sat, _, _ = max(cold, key=lambda r: r[4] - r[2])
+        if persistent:
+            inert = float(np.median(bound))
+            out.append((f"the ullage reads colder than saturation at the measured pressure at {len(cold)} of {n} audit "
+                        f"times, by up to {T_sat - T_v:.2f} K (t = {t:.0f} s): a pure vapour would condense; an inert "
+                        f"gas with a partial pressure of at least {inert:.4g} Pa (median; {inert / p:.0%} of the "
+                        "pressure), or a biased pressure or ullage temperature sensor", True))
+        else:
+            out.append((f"the ullage reads colder than saturation at {len(cold)} of {n} audit times (up to "
+                        f"{T_sat - T_v:.2f} K at t = {t:.0f} s): a transient, not persistent enough to be evidence", False))
     if hot:
-        t, dT, p, T_l = max(hot, key=lambda c: c[1])
-        out.append(f"the liquid reads warmer than saturation at the measured pressure at {len(hot)} of "
-                   f"{len(series['t_s'])} audit times, by up to {dT:.2f} K (t = {t:.0f} s): a pressure sensor "
-                   "reading low or a biased liquid temperature sensor")
-    return out
+        persistent = len(hot) >= config.consistency_share * n
+        t, p, _, T_l, T_sat, _, _ = max(hot, key=lambda r: r[3] - r[4])
+        if persistent:
+            out.append((f"the liquid reads warmer than saturation at the measured pressure at {len(hot)} of {n} audit "
+                        f"times, by up to {T_l - T_sat:.2f} K (t = {t:.0f} s): a pressure sensor reading low or a "
+                        "liquid temperature sensor reading high", True))
+        else:
+            out.append((f"the liquid reads warmer than saturation at {len(hot)} of {n} audit times (up to "
+                        f"{T_l - T_sat:.2f} K at t = {t:.0f} s): a transient (superheat before flashing), not "
+                        "persistent enough to be evidence", False))
+    return out, inert
 
 
-def _p_sat(thermo: _Thermo, T: float) -> float:
-    import CoolProp.CoolProp as CP
-
-    return float(CP.PropsSI("P", "T", T, "Q", 0, thermo.ref.name))
-
-
-def _name(run, phases, mass, heat, cw_factor, cold, thermo, config, has_level) -> list[InventoryFinding]:
-    """The findings of the balances (module docstring, step 6)."""
+def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level):
+    """The findings of the balances (module docstring, step 6) and the hypothesis they rest on ("" for none)."""
     out: list[InventoryFinding] = []
-    z = config.z_name
-    heat_named = abs(heat.z) >= z
-    mass_named = mass is not None and abs(mass.z) >= z
-    if cw_factor is not None and abs(cw_factor.value - 1) / max(cw_factor.std, 1e-300) >= z:
-        out.append(InventoryFinding("wall_heat_capacity_error", cw_factor, "x stated", ("wall_heat_capacity_error",),
-                                    f"the wall stores heat as {cw_factor.value:.3g} +- {cw_factor.std:.2g} times "
-                                    "the stated heat capacity"))
-    if mass_named:
-        # Which single mechanism explains both balances, phase by phase?
-        hyps = _mass_hypotheses(phases)
-        best = min(hyps, key=lambda h: hyps[h][0])
-        others = sorted(hyps[h][0] - hyps[best][0] for h in hyps if h != best)
-        rate, rate_std = hyps[best][1], hyps[best][2]
-        if best == "inflow_meter_bias" and (not others or others[0] >= config.chi2_separation):
-            out.append(InventoryFinding("inflow_meter_bias", Estimate(rate, rate_std), "relative",
-                                        ("inflow_meter_bias",),
-                                        f"the metered inflows are off by a factor {1 + rate:.3g} (+- {rate_std:.2g}): "
-                                        "the unmetered mass follows the metered inflow"))
-            return out
-        if best in ("vapor_leak", "liquid_leak") and (not others or others[0] >= config.chi2_separation) \
-                and not heat_named_after_leak(hyps, best, config):
-            out.append(InventoryFinding(best, Estimate(-mass.value, mass.std), "kg/s", (best,),
-                                        f"unmetered mass loss of {-mass.value:.3g} +- {mass.std:.2g} kg/s carrying "
-                                        f"the {'ullage' if best == 'vapor_leak' else 'liquid'}'s enthalpy: a "
-                                        f"{'vapour' if best == 'vapor_leak' else 'liquid'} leak"))
-            return out
-        kind = "loss" if mass.value < 0 else "gain"
-        out.append(InventoryFinding("unmetered_mass", mass, "kg/s",
-                                    ("vapor_leak", "liquid_leak", "inflow_meter_bias"),
-                                    f"unmetered mass {kind} of {abs(mass.value):.3g} +- {mass.std:.2g} kg/s; which "
-                                    "stream carries it is not resolved by the balances (with unmetered heat {heat} W "
-                                    "beside it): a vapour or liquid leak, or a metered flow that is off".replace(
-                                        "{heat}", f"{heat.value:.3g} +- {heat.std:.2g}")))
-        return out
-    if heat_named:
-        where = "entering" if heat.value > 0 else "leaving"
-        candidates = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
-        note = "" if has_level else " (no level sensor: an unmetered mass loss would read as heat too)"
-        out.append(InventoryFinding("unmetered_heat", heat, "W", candidates,
-                                    f"unmetered heat {heat.value:.3g} +- {heat.std:.2g} W {where} the tank: through "
-                                    f"the wall, the liquid or the ullage, which the whole-tank balance cannot tell apart{note}"))
-    if cold:
-        out.append(InventoryFinding("inert_gas_or_sensor_bias", None, "", ("noncondensable_gas", "pressure_sensor_bias"),
-                                    "the ullage reads colder than saturation at the measured pressure: an inert gas or "
-                                    "a biased pressure or temperature sensor"))
-    return out
-
-
-def heat_named_after_leak(hyps, best, config) -> bool:
-    """Whether the leak hypothesis leaves a significant heat residual (then the stream is not resolved)."""
-    return hyps[best][3] >= config.z_name
-
-
-def _mass_hypotheses(phases) -> dict:
-    """chi2 of each single-mechanism hypothesis over the phases' (mass, heat) estimates, with its rate.
-
-    Returns ``{name: (chi2, rate, rate_std, |z| of the heat left over)}``: a leak of constant rate L
-    (kg/s) carries ``-L h`` of energy with ``h`` the ullage's or the liquid's enthalpy; an inflow bias
-    ``b`` adds ``b mdot_in`` of mass and ``b mdot_in h_in`` of energy in the inflow phases only.
-    """
-    rows = [(p.mass_kg_s, p.heat_W, p) for p in phases if p.mass_kg_s is not None]
-    out = {}
-    for name in ("vapor_leak", "liquid_leak", "inflow_meter_bias"):
-        A, y, w = [], [], []
-        for m, e, p in rows:
-            if name == "inflow_meter_bias":
-                am, ae = p.inflow_kg_s, p.inflow_kg_s * p.inflow_enthalpy_J_per_kg
+    chosen = ""
+    z, sep = config.z_name, config.chi2_separation
+    note = "" if mass_level else " (no level sensor: an unmetered mass loss would read as heat too)"
+    # A leak's rate is a loss (> 0); a fitted negative one is not a leak.
+    admissible = [h for h in hyps.values() if h.name not in ("vapor_leak", "liquid_leak") or h.estimate.value > 0]
+    free_mass = mass is not None and abs(mass.z) >= z
+    free_heat = abs(heat.z) >= z
+    if admissible:
+        best = min(admissible, key=lambda h: h.chi2)
+        significant = abs(best.z) >= z
+        explains = best.chi2 - chi2_general <= sep
+        # A rival explains the data about as well with its own rate resolved (|z| >= 3); one whose rate
+        # is ~0 there only says the nuisances (wall capacity prior, liquid offset) could explain it.
+        rivals = [h for h in admissible if h is not best and h.chi2 - best.chi2 < sep and abs(h.z) >= 3]
+        if significant and explains and not rivals:
+            out.append(_single(best, note))
+            chosen = best.name
+        elif significant or free_mass or free_heat:
+            names = [best.name] + [h.name for h in rivals] if explains else [h.name for h in admissible]
+            cands = tuple(c for nme in names for c in (_heat_candidates(heat) if nme == "heat" else (nme,)))
+            listed = ", ".join(cands) or "no heat leak (heat leaves the tank)"
+            if free_mass:
+                kind = "loss" if mass.value < 0 else "gain"
+                out.append(InventoryFinding(
+                    "unmetered_mass", mass, "kg/s", cands,
+                    f"unmetered mass {kind} of {abs(mass.value):.3g} +- {mass.std:.2g} kg/s with unmetered heat "
+                    f"{heat.value:.3g} +- {heat.std:.2g} W beside it; the balances do not tell which of "
+                    f"{listed} carries it"))
             else:
-                h = _phase_enthalpy(p, name)
-                am, ae = -1.0, -h
-            A += [am, ae]
-            y += [m.value, e.value]
-            w += [1 / m.std**2, 1 / e.std**2]
-        A, y, w = np.array(A), np.array(y), np.array(w)
-        denom = float((w * A * A).sum())
-        if denom <= 0:
-            out[name] = (float("inf"), 0.0, float("inf"), 0.0)
-            continue
-        rate = float((w * A * y).sum() / denom)
-        res = y - A * rate
-        chi2 = float((w * res * res).sum())
-        # heat left over: the energy rows' residual, as a z-score of their weighted mean
-        we, re = w[1::2], res[1::2]
-        z_left = abs(float((we * re).sum() / we.sum()) * math.sqrt(we.sum()))
-        out[name] = (chi2, rate, float(1 / math.sqrt(denom)), z_left)
-    return out
+                out.append(InventoryFinding(
+                    "unmetered_heat", heat, "W", cands,
+                    f"unmetered heat {heat.value:.3g} +- {heat.std:.2g} W{note}; the balances do not tell "
+                    f"{listed} apart"))
+    persistent_cold = any(p and s.startswith("the ullage reads colder") for s, p in consistency)
+    if persistent_cold:
+        out.append(InventoryFinding("inert_gas_or_sensor_bias", Estimate(inert, float("nan")), "Pa",
+                                    ("noncondensable_gas", "pressure_sensor_bias"),
+                                    f"the ullage reads colder than saturation at the measured pressure: an inert gas "
+                                    f"(partial pressure at least {inert:.4g} Pa) or a biased pressure or ullage "
+                                    "temperature sensor"))
+    return out, chosen
 
 
-def _phase_enthalpy(p: PhaseAudit, name: str) -> float:
-    return p.h_v_J_per_kg if name == "vapor_leak" else p.h_l_J_per_kg
+def _heat_candidates(heat: Estimate) -> tuple[str, ...]:
+    """Where unmetered heat may enter; none for heat leaving the tank (heat leaks are inflows)."""
+    return HEAT_CANDIDATES if heat.value > 0 else ()
 
 
-__all__ = ["AuditConfig", "Estimate", "PhaseAudit", "InventoryFinding", "RunAudit", "audit_run"]
+def _single(h: Hypothesis, note: str = "") -> InventoryFinding:
+    e = h.estimate
+    if h.name == "wall_heat_capacity_error":
+        return InventoryFinding(h.name, e, "x stated", (h.name,),
+                                f"the wall stores heat as {e.value:.3g} +- {e.std:.2g} times the stated heat capacity: "
+                                "the unmetered energy follows the wall temperature")
+    if h.name == "heat":
+        if e.value > 0:
+            return InventoryFinding("unmetered_heat", e, "W", HEAT_CANDIDATES,
+                                    f"unmetered heat {e.value:.3g} +- {e.std:.2g} W entering the tank: through the "
+                                    f"wall, the liquid or the ullage, which the whole-tank balance cannot tell apart{note}")
+        return InventoryFinding("unmetered_heat", e, "W", (),
+                                f"unmetered heat {e.value:.3g} +- {e.std:.2g} W leaving the tank: a metered heat load "
+                                f"above the true one, or a loss the balances do not attribute{note}")
+    if h.name == "inflow_meter_bias":
+        return InventoryFinding("inflow_meter_bias", e, "relative", ("inflow_meter_bias",),
+                                f"the true inflows are {1 + e.value:.3g} (+- {e.std:.2g}) times the metered ones: the "
+                                "unmetered mass and energy follow the metered inflow")
+    stream = "ullage" if h.name == "vapor_leak" else "liquid"
+    return InventoryFinding(h.name, e, "kg/s", (h.name,),
+                            f"unmetered mass loss of {e.value:.3g} +- {e.std:.2g} kg/s carrying the {stream}'s "
+                            f"enthalpy: a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak")
+
+
+__all__ = ["AuditConfig", "Estimate", "Hypothesis", "PhaseAudit", "InventoryFinding", "RunAudit", "audit_run",
+           "HYPOTHESES", "HEAT_CANDIDATES"]

@@ -36,20 +36,30 @@ def _finite(x):
 
 
 def write_report(d: Diagnosis, out_dir, fluid: str) -> dict:
-    """Write every output of the diagnosis into ``out_dir``; returns the paths written."""
+    """Write every output of the diagnosis into ``out_dir``; returns the paths written.
+
+    Figures: ``inventory_RUN.png`` (the audit's measured inventory against the metered one),
+    and where the dynamic search ran ``prediction_RUN.png``, ``residuals_RUN.png`` and
+    ``heldout_loss.png``.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"json": out / "report.json", "md": out / "report.md", "model": out / "model"}
     figs = []
-    for e, name in enumerate(d.runs):
-        p = out / f"prediction_{name}.png"
-        _plot_prediction(d, e, p)
-        r = out / f"residuals_{name}.png"
-        _plot_residuals(d, e, r)
-        figs += [p, r]
-    g = out / "heldout_loss.png"
-    _plot_heldout(d, g)
-    figs.append(g)
+    for a in d.audits:
+        f = out / f"inventory_{a.run}.png"
+        plot_inventory(a, f)
+        figs.append(f)
+    if d.baseline_fit is not None:
+        for e, name in enumerate(d.runs):
+            p = out / f"prediction_{name}.png"
+            _plot_prediction(d, e, p)
+            r = out / f"residuals_{name}.png"
+            _plot_residuals(d, e, r)
+            figs += [p, r]
+        g = out / "heldout_loss.png"
+        _plot_heldout(d, g)
+        figs.append(g)
     paths["figures"] = figs
     closure, mechanisms = d.extended_model()
     save_model(paths["model"], closure, fluid, {
@@ -62,15 +72,22 @@ def write_report(d: Diagnosis, out_dir, fluid: str) -> dict:
 
 
 def markdown(d: Diagnosis, figures: list[str]) -> str:
-    """The engineer's report: verdict, evidence table, what the baseline gets wrong, figures."""
+    """The engineer's report: verdict, inventory audit, evidence table, what the baseline gets wrong, figures."""
     L = ["# tankode diagnosis", ""]
     L.append(f"Runs: {', '.join(d.runs)}. Validation: {d.split}. {d.n_simulations} simulations, "
              f"{d.wall_time_s:.0f} s.")
     L.append("")
-    if d.cause:
+    v = d.verdict
+    if v.kind == "cause":
+        L.append(f"**Cause: `{d.cause}`** ({v.source}): {v.sentence}.")
+    elif v.kind == "unresolved":
+        L.append(f"**Measured, not located: {v.sentence}.** Candidates: "
+                 + ", ".join(f"`{c}`" for c in v.candidates) + ".")
+    L += [f"{n[0].upper() + n[1:]}." for n in v.notes]
+    if d.cause and d.extended and v.source != "inventory audit" and d.ranking and d.ranking[0].mechanism == d.cause:
         c = d.ranking[0]
-        ps = ", ".join(f"{k} = {v:.4g} +- {c.params_std[k]:.2g}" for k, v in d.extended["params"].items())
-        L.append(f"**Cause: `{d.cause}`** ({ps}, fitted on all data). It lowers the held-out loss by "
+        ps = ", ".join(f"{k} = {val:.4g} +- {d.extended['params_std'][k]:.2g}" for k, val in d.extended["params"].items())
+        L.append(f"Fitted on all data: {ps}. It lowers the held-out loss by "
                  f"{100 * c.heldout_gain:.0f} % (95 % interval {100 * c.heldout_gain_ci[0]:.0f} to "
                  f"{100 * c.heldout_gain_ci[1]:.0f} %), dBIC {c.delta_bic:.1f}.")
         if d.alternatives:
@@ -80,28 +97,38 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
                 + f" also clears every threshold, within {d.thresholds.alternative_bic:g} of the cause's dBIC: "
                 "the data favour the cause but do not exclude these; a measurement that tells them apart "
                 "(see each mechanism's signature) would settle it.")
-    else:
-        L.append("**No candidate mechanism explains the misfit** with the required evidence.")
-        if d.unexplained:
-            L.append("Channels still beyond the noise on held-out data: " + ", ".join(
-                f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"
-                for u in d.unexplained) + ".")
-        else:
-            L.append("The calibrated baseline predicts the held-out data within the noise.")
+    elif v.kind == "none":
+        L.append("**No cause**: nothing unmetered beyond the noise in the inventory, and no candidate mechanism "
+                 "explains the dynamic misfit with the required evidence.")
+    if d.cause is None and d.unexplained:
+        L.append("Channels still beyond the noise on held-out data: " + ", ".join(
+            f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"
+            for u in d.unexplained) + ".")
+    elif d.cause is None and d.baseline_fit is not None:
+        L.append("The calibrated baseline predicts the held-out data within the noise.")
+    L += [f"{n[0].upper() + n[1:]}." for n in d.dynamic_notes]
+    L += [""] + audit_markdown(d)
+    if d.baseline_fit is None:
+        L += ["## Figures", ""] + [f"![{f}]({f})" for f in figures]
+        return "\n".join(L) + "\n"
     th = d.thresholds
     L += ["", f"Decision rule: dBIC <= {th.delta_bic}, held-out gain >= {th.heldout_gain} with the lower end of its "
           f"95 % block-bootstrap interval > {th.gain_ci_low}, estimate / standard error >= {th.z_score}, and at least "
-          f"{th.explained:.0%} of the baseline's held-out loss above the noise floor explained; the estimate "
+          f"{th.explained:.0%} of the baseline's held-out loss above the noise floor explained; a held-out loss with "
+          f"the mechanism of at most {th.adequate:g} times the noise floor (the model follows the data); a rate "
+          "within the inventory audit's interval (inventory mechanisms); the estimate "
           f"refitted on held-out data agrees within {th.stability:.0%} plus three standard errors; and no other "
           f"candidate that fits better by more than {th.outranked_bic:g} in dBIC with a real held-out gain is left "
           f"unnamed (outranked).", ""]
-    L += ["## Candidates", "",
+    L += ["## Dynamic search: candidates", "",
           "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | explained | verdict |",
           "|---|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(d.ranking, 1):
         est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
         verdict = "cause" if c.passes and c.mechanism == d.cause else ("passes" if c.passes else "; ".join(c.reasons)
                                                                         or "not refitted")
+        if c.passes and c.mechanism != d.cause and d.verdict.kind != "cause":
+            verdict = "passes; not named (the verdict rests on the inventory audit)"
         gain = (f"{c.heldout_gain:.3f} [{c.heldout_gain_ci[0]:.3f}, {c.heldout_gain_ci[1]:.3f}]"
                 if c.refit else "")
         expl = f"{c.explained:.0%}" if c.refit else ""
@@ -148,6 +175,74 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     L += ["## Figures", ""] + [f"![{f}]({f})" for f in figures]
     L += ["", "The extended model is in `model/` (use it with `tankode simulate|assimilate|predict`)."]
     return "\n".join(L) + "\n"
+
+
+def _est(e, scale: float = 1.0, digits: str = ".3g") -> str:
+    if e is None:
+        return "-"
+    std = f" +- {e.std * scale:.2g}" if math.isfinite(e.std) else ""
+    return f"{e.value * scale:{digits}}{std}"
+
+
+def audit_markdown(d: Diagnosis) -> list[str]:
+    """The inventory audit's section: run-wide and per-phase unmetered mass and heat, hypotheses, consistency."""
+    L = ["## Inventory audit: what the meters did not see", "",
+         "The tank's mass and energy reconstructed from its sensors (CoolProp), less the metered inflows, outflows "
+         "and heat load; heat and mass exchanged inside the tank cancel, so no heat-transfer law enters. Rates "
+         "are +- one standard error (sensor noise, widened by the Birge ratio where a straight line does not fit).",
+         ""]
+    L += [f"Not audited: {n}." for n in d.audit_notes]
+    for a in d.audits:
+        L += [f"### {a.run}", "",
+              f"Over the run: unmetered mass {_est(a.mass_kg_s, 1e3)} g/s, unmetered heat {_est(a.heat_W)} W"
+              + (f", wall heat capacity {_est(a.wall_capacity_factor)} x stated" if a.wall_capacity_factor else "")
+              + f", liquid temperature offset {_est(a.liquid_offset_K)} K (Birge ratio {a.birge:.2f}).", ""]
+        named = [f.sentence for f in a.findings]
+        L.append("Findings: " + ("; ".join(named) if named else "nothing unmetered beyond the noise") + ".")
+        if a.consistency:
+            L.append("Saturation consistency: " + "; ".join(a.consistency) + ".")
+        L += ["", "| single cause | estimate | chi2 |", "|---|---|---|"]
+        units = {"heat": "W", "vapor_leak": "g/s lost", "liquid_leak": "g/s lost", "inflow_meter_bias": "relative",
+                 "wall_heat_capacity_error": "x stated C_w"}
+        for h in sorted(a.hypotheses.values(), key=lambda h: h.chi2):
+            scale = 1e3 if h.name.endswith("leak") else 1.0
+            L.append(f"| {h.name} | {_est(h.estimate, scale)} {units[h.name]} | {h.chi2:.1f} |")
+        L += ["", "| phase | operations | unmetered mass [g/s] | unmetered heat [W] | Birge (mass, heat) |",
+              "|---|---|---|---|---|"]
+        for p in a.phases:
+            L.append(f"| {p.t0_s:.0f}-{p.t1_s:.0f} s | {p.kind} | {_est(p.mass_kg_s, 1e3)} | {_est(p.heat_W)} | "
+                     f"{p.birge_mass:.2f}, {p.birge_heat:.2f} |")
+        L.append("")
+    return L
+
+
+def plot_inventory(a, path) -> None:
+    """The measured inventory against the metered one (mass and energy), with the unmetered residual."""
+    s = a.series
+    t = s["t_s"] / 60.0
+    has_mass = np.isfinite(s["mass_kg"]).any()
+    rows = [("mass_kg", "mass_metered_kg", "mass_std", "mass", "kg", 1.0)] if has_mass else []
+    rows.append(("energy_J", "energy_metered_J", "energy_std", "energy", "MJ", 1e-6))
+    fig, axes = plt.subplots(len(rows), 2, figsize=(11, 3.0 * len(rows)), squeeze=False, sharex=True)
+    for (m, k, sd, label, unit, f), (ax, axr) in zip(rows, axes):
+        ax.plot(t, s[k] * f, color="tab:red", lw=1.2, label="metered (start + inflows - outflows + Q_aw)")
+        ax.plot(t, s[m] * f, ".", ms=3, color="k", label="measured (sensors + CoolProp)")
+        ax.set_ylabel(f"{label} [{unit}]")
+        r, e = (s[m] - s[k]) * f, 2 * s[sd] * f
+        axr.fill_between(t, r - e, r + e, color="0.8", lw=0, label="+- 2 std")
+        axr.plot(t, r, color="tab:blue", lw=1.0, label="measured - metered")
+        axr.axhline(0, color="k", lw=0.6)
+        axr.set_ylabel(f"unmetered {label} [{unit}]")
+        for x in (ax, axr):
+            x.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+        axr.legend(fontsize=7, loc="best")
+    for x in axes[-1]:
+        x.set_xlabel("time [min]")
+    fig.suptitle(f"{a.run}: measured inventory against the metered one")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _heldout_rms_table(d: Diagnosis) -> list[str]:
@@ -238,4 +333,4 @@ def _plot_heldout(d: Diagnosis, path) -> None:
     plt.close(fig)
 
 
-__all__ = ["write_report", "markdown"]
+__all__ = ["write_report", "markdown", "audit_markdown", "plot_inventory"]

@@ -17,13 +17,14 @@ from .noncondensable import NoncondensableGas
 from .sensors import InflowMeterBias, PressureSensorBias
 from .stratification import ThermalStratification
 from .surface_layer import SurfaceLayer
+from .two_node_wall import TwoNodeWall
 from .wall_capacity import WallHeatCapacityError
 
 MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
               WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
-              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode)
+              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode, TwoNodeWall)
 }
 
 
@@ -53,5 +54,5 @@ __all__ = [
     "MECHANISMS", "Mechanism", "Param", "StateVar", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
-    "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode",
+    "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode", "TwoNodeWall",
 ]

@@ -159,8 +159,9 @@ class Mechanism(nn.Module):
         """The operations actually applied, given the metered ones."""
         return forcing
 
-    def heat_W(self, s: Tensor, forcing: Forcing, fluxes) -> tuple[Tensor | float, Tensor | float, Tensor | float]:
-        """Extra heat (W) into (vapour, liquid, wall) at state ``s`` ``(env, 7)``.
+    def heat_W(self, s: Tensor, forcing: Forcing, fluxes, z: Tensor) -> tuple[Tensor | float, Tensor | float,
+                                                                            Tensor | float]:
+        """Extra heat (W) into (vapour, liquid, wall) at state ``s`` ``(env, 7)`` and own states ``z``.
 
         ``forcing`` is the applied forcing and ``fluxes`` the baseline's ``tankode.model.Fluxes``
         at ``s`` (heat flows, wetted areas), for mechanisms that redistribute them.
@@ -175,11 +176,12 @@ class Mechanism(nn.Module):
         """Own states ``(env, n_states)`` at the start, for the tank's initial state ``s0`` ``(env, 7)``."""
         return s0.new_zeros(s0.shape[0], len(self.states))
 
-    def state_derivative(self, z: Tensor, s: Tensor, forcing: Forcing, fluxes, liquid) -> Tensor:
+    def state_derivative(self, z: Tensor, s: Tensor, forcing: Forcing, fluxes, liquid, tank_rate: Tensor) -> Tensor:
         """d/dt of own states ``z`` ``(env, n_states)`` at tank state ``s`` ``(env, 7)``.
 
         ``fluxes`` is the model's ``tankode.model.Fluxes`` at ``s`` (with every mechanism's
-        effect on them) and ``liquid`` the liquid's ``PhaseProps``.
+        effect on them), ``liquid`` the liquid's ``PhaseProps`` and ``tank_rate`` the tank's own
+        ``ds/dt`` ``(env, 7)`` (e.g. the level's motion, ``dV_l/dt``).
         """
         return z.new_zeros(z.shape)
 

@@ -100,7 +100,7 @@ class BoundaryLayerStratification(SurfaceLayer):
                                         s[..., 4] - fluxes.T_l_K, fluxes.H_l_m, fluxes.A_wl_m2 / fluxes.H_l_m)
         return self.param(2, x) * flow / (rho_l * fluxes.A_i_m2)
 
-    def state_derivative(self, z, s, forcing, fluxes, liquid):
+    def state_derivative(self, z, s, forcing, fluxes, liquid, tank_rate):
         x = z[..., 0]  # (env,)
         renewal = self._flow(x, s, fluxes, liquid)
         return torch.stack([self.param(0, x) * (self._source(x, s, fluxes, liquid) - renewal * x)], dim=-1)

@@ -36,7 +36,7 @@ class DryWallHeating(Mechanism):
     params = (Param("phi", "1", 0.0, 1.0, 0.1),)
     signature = "T_v and pressure rise faster under a heat load, most at low fill; T_w and T_l lag"
 
-    def heat_W(self, s, forcing, fluxes):
+    def heat_W(self, s, forcing, fluxes, z):
         dry_share = fluxes.A_wv_m2 / (fluxes.A_wv_m2 + fluxes.A_wl_m2)  # (env,)
         q = self.param(0, fluxes.Q_wv_W) * forcing.Q_aw_W * dry_share  # (env,)
         return q, 0.0, -q

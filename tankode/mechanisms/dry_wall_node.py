@@ -56,7 +56,7 @@ class DryWallNode(Mechanism):
     params = (Param("R_sheet_K_per_W", "K/W", 0.0, 1.0e3, 10.0),)
     signature = "T_v stays above T_l under a heat load (most at low fill); pressure rises faster; T_w lags"
 
-    def heat_W(self, s, forcing, fluxes):
+    def heat_W(self, s, forcing, fluxes, z):
         hA = fluxes.theta_W_m2K[..., 2] * fluxes.A_wv_m2  # h_wv A_wv, W/K  # (env,)
         q = hA * self.node_excess_K(self.param(0, fluxes.Q_wv_W), fluxes, forcing.Q_aw_W)
         return q, 0.0, -q

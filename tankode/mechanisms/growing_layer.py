@@ -61,7 +61,7 @@ class GrowingLayer(BoundaryLayerStratification):
         """``d delta/dt`` (m/s), ``(env,)``: the share ``c`` of the boundary layer's flow piling up under the surface."""
         return self._flow(x, s, fluxes, liquid)
 
-    def state_derivative(self, z, s, forcing, fluxes, liquid):
+    def state_derivative(self, z, s, forcing, fluxes, liquid, tank_rate):
         x, grown = z[..., 0], z[..., 1]  # (env,)
         inv0 = self.param(0, x)
         inv_delta = inv0 / (1.0 + inv0 * grown)  # 1/(delta_0 + grown); 0 when absent

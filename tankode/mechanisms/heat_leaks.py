@@ -20,7 +20,7 @@ class HeatLeakLiquid(Mechanism):
     params = (_Q,)
     signature = "T_l drifts up; pressure rises slowly through evaporation"
 
-    def heat_W(self, s, forcing, fluxes):
+    def heat_W(self, s, forcing, fluxes, z):
         return 0.0, self.param(0), 0.0
 
 
@@ -35,7 +35,7 @@ class HeatLeakVapor(Mechanism):
     params = (_Q,)
     signature = "T_v and pressure rise from the start"
 
-    def heat_W(self, s, forcing, fluxes):
+    def heat_W(self, s, forcing, fluxes, z):
         return self.param(0), 0.0, 0.0
 
 
@@ -50,7 +50,7 @@ class HeatLeakWall(Mechanism):
     params = (_Q,)
     signature = "T_w drifts up first; T_v, T_l and pressure follow"
 
-    def heat_W(self, s, forcing, fluxes):
+    def heat_W(self, s, forcing, fluxes, z):
         return 0.0, 0.0, self.param(0)
 
 

@@ -56,7 +56,7 @@ class SurfaceLayer(Mechanism):
     def interface_offset_K(self, z):
         return z[..., 0]
 
-    def state_derivative(self, z, s, forcing, fluxes, liquid):
+    def state_derivative(self, z, s, forcing, fluxes, liquid, tank_rate):
         x = z[..., 0]  # (env,)
         rho_l = s[..., 1] / s[..., 6]
         inv_c_s = self.param(0, x) / (rho_l * liquid.cp * fluxes.A_i_m2)  # 1/C_s, K/J
