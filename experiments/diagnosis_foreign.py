@@ -33,8 +33,9 @@ import sys
 import time
 from pathlib import Path
 
+from tankode.diagnosis.verdict import AUDIT_HYPOTHESIS, INVENTORY as INVENTORY_MECHANISMS
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 # nodal_sim mechanism -> (tankode's name for it, the value the verdict's estimate is compared with)
 NODAL_MECHANISMS = {
@@ -51,8 +52,8 @@ NODAL_MECHANISMS = {
 }
 # Helium amounts that carry 13-23 % of each scenario's initial ullage pressure (nodal_sim's truth files).
 INERT_MOL = {"tank_4p9m3": 200.0, "upright_13m3": 700.0, "sphere_4m3": 200.0, "hcyl_drain_fill": 400.0}
-INVENTORY = {"heat_leak_liquid": "heat", "heat_leak_vapor": "heat", "heat_leak_wall": "heat", "vapor_leak": "vapor_leak",
-             "liquid_leak": "liquid_leak", "inflow_meter_bias": "inflow_meter_bias"}
+# The audit's hypothesis that measures each inventory mechanism.
+INVENTORY = {m: AUDIT_HYPOTHESIS[m] for m in INVENTORY_MECHANISMS}
 SCENARIOS = ("tank_4p9m3", "upright_13m3", "sphere_4m3", "hcyl_drain_fill")
 LAWS = ("mcadams", "paper_printed")
 

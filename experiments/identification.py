@@ -59,7 +59,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
-    ap.add_argument("--mode", choices=("fixed", "growing"), default=None,
+    ap.add_argument("--mode", choices=("fixed", "growing", "replay"), default=None,
                     help="AssimilationConfig.mode (default: the config block's, fixed)")
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -78,7 +78,7 @@ def main(argv=None) -> dict:
         run = run.until(QUICK_DURATION_S)
     truth = simulate(run)
     (data,) = solution_to_runs(run, truth, noise=NOISE, seed=args.seed)
-    agent0 = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
+    agent0 = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed, base=config.agent_base))
     assimilator = Assimilator([data], config, closure=agent0)
     snapshots = []  # the agent after each window: what the real-time loop knows at that time
 

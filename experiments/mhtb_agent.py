@@ -30,10 +30,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from common import MHTB_CHANNELS as CHANNELS, MHTB_RUNS as RUNS, ebm_predictions, mhtb_runs  # noqa: E402
+from common import MHTB_CHANNELS as CHANNELS, MHTB_RUNS as RUNS, ebm_predictions, mhtb_runs, score_on_ebm_samples  # noqa: E402
 from tankode.closures import MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
 from tankode.compare import channel_rmse, solution_observations  # noqa: E402
-from tankode.errors import SimulationError  # noqa: E402
 from tankode.mechanisms import make_mechanism  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
 from tankode.simulation import simulate  # noqa: E402
@@ -69,17 +68,6 @@ SOLVERS = {"LSODA": LSODA(rtol=CONFIG.rtol, atol=CONFIG.atol),
            "Rosenbrock": Rosenbrock(rtol=CONFIG.rtol, atol=CONFIG.atol),
            "AdaptiveRK (dopri5)": AdaptiveRK(rtol=CONFIG.rtol, atol=CONFIG.atol)}
 # -----------------------------------------------------------------------------------------------
-
-
-def _score(run, closure, mechanisms, ebm):
-    """``(rmse, solution, error)``: the channels' RMSE on the EBM's samples and the prediction, or
-    ``(None, None, the solver's message)`` if the prediction fails."""
-    try:
-        sol = simulate(run, closure, output_dt_s=60.0, mechanisms=mechanisms)
-    except SimulationError as err:
-        return None, None, str(err).splitlines()[0]
-    rmse = channel_rmse(run, solution_observations(sol), CHANNELS, within=ebm)
-    return {c: rmse[c]["rmse"] for c in CHANNELS}, sol, ""
 
 
 def _shell(mechanisms) -> float | None:
@@ -119,7 +107,7 @@ def main(argv=None) -> dict:
     for model_name, (spec, trained, mode) in models.items():
         mechanisms = tuple(make_mechanism(name, **values) for name, values in spec.items())
         for test in runs:
-            score, sol, error = _score(runs[test], ReferenceClosure(), mechanisms, ebm[test])
+            score, sol, error = score_on_ebm_samples(runs[test], ReferenceClosure(), mechanisms, ebm[test])
             rows.append({"model": model_name, "closure": "published correlations", "trained_on": [], "test": test,
                          "held_out": None, "rmse": score, "error": error, "R_sheet_K_per_W": _shell(mechanisms)})
             if sol is not None:
@@ -128,7 +116,7 @@ def main(argv=None) -> dict:
             # fresh mechanisms for every training: trained parameters change in place
             mechanisms = tuple(make_mechanism(name, **values) for name, values in spec.items())
             a = Assimilator([runs[n] for n in names], dataclasses.replace(config, train_mechanisms=trained, mode=mode),
-                            closure=MLPClosure(MLPConfig(seed=config.seed)), mechanisms=mechanisms)
+                            closure=MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base)), mechanisms=mechanisms)
             start = time.perf_counter()
             result = a.run()  # one thread, as Assimilator.run always runs
             wall_s = time.perf_counter() - start
@@ -141,7 +129,7 @@ def main(argv=None) -> dict:
             print(f"{model_name}, agent trained on {label}: {len(windows)} windows in {wall_s:.0f} s "
                   f"(real-time factor {float(span_s) / wall_s:.0f}), R_s {shell}", flush=True)
             for test in runs:
-                score, sol, error = _score(runs[test], result.closure, mechanisms, ebm[test])
+                score, sol, error = score_on_ebm_samples(runs[test], result.closure, mechanisms, ebm[test])
                 rows.append({"model": model_name, "closure": f"agent ({mode} windows)", "trained_on": list(names), "test": test,
                              "held_out": test not in names, "rmse": score, "error": error, "R_sheet_K_per_W": shell,
                              "train_wall_s": wall_s, "real_time_factor": float(span_s) / wall_s, "windows": windows})

@@ -164,14 +164,14 @@ def main(argv=None) -> dict:
     results = []
     for d in range(draws):
         order = np.random.default_rng(d).permutation(len(pool))
-        init = MLPClosure(MLPConfig(seed=d))
+        init = MLPClosure(MLPConfig(seed=d, base=config.agent_base))
         untrained = score(init, test)
         results.append({"draw": d, "n": 0, "trained_on": [], "score": untrained, "train_s": 0.0})
         print(f"draw {d}, untrained agent: held-out J mean {untrained['mean']:.4g}, median {untrained['median']:.4g}",
               flush=True)
         for n in n_train:
             chosen = [pool[i] for i in order[:n]]
-            closure = MLPClosure(MLPConfig(seed=d))
+            closure = MLPClosure(MLPConfig(seed=d, base=config.agent_base))
             t = time.perf_counter()
             res = Assimilator(chosen, config, closure=closure).run()
             train_s = time.perf_counter() - t

@@ -159,7 +159,7 @@ def cmd_assimilate(args) -> int:
     if args.inputs is not None:
         from .closures import INPUT_SETS, MLPClosure, MLPConfig
 
-        closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed))
+        closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed, base=config.agent_base))
     if args.init is not None:
         closure, mechanisms, _ = load_model(args.init)
         if not any(p.requires_grad for p in closure.parameters()):

@@ -41,7 +41,7 @@ from .run import (
     canonical_fluid,
 )
 from .files import OutputError
-from .schedule import INPUT_NAMES, Schedule, ScheduleError, _input_value_problem
+from .schedule import INPUT_NAMES, Schedule, ScheduleError, input_value_problem
 
 __all__ = ["read_run", "write_run", "read_timeseries_csv", "timeseries_path"]
 
@@ -257,7 +257,7 @@ def _read_csv(path: Path, fluid: str) -> _CsvData:
                 v = _parse_cell(path, line, header[i], row[i])
                 if v is None:
                     continue  # empty: unchanged
-                problem = _input_value_problem(header[i], v) or _plausibility_problem(header[i], v, fluid)
+                problem = input_value_problem(header[i], v) or _plausibility_problem(header[i], v, fluid)
                 if problem:
                     raise RunFormatError(path, line, header[i], problem)
                 current[j] = v

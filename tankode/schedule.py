@@ -35,6 +35,7 @@ __all__ = [
     "INPUT_NAMES",
     "Schedule",
     "ScheduleError",
+    "input_value_problem",
     "merge_breakpoints",
 ]
 
@@ -84,7 +85,7 @@ class ScheduleError(ValueError):
         super().__init__(f"{' '.join(where)}: {reason}" if where else reason)
 
 
-def _input_value_problem(name: str, value: float) -> str | None:
+def input_value_problem(name: str, value: float) -> str | None:
     """Return why ``value`` is not acceptable for input ``name`` (fluid-independent), or None."""
     if not math.isfinite(value):
         return f"value {value!r} is not finite (inputs must be numbers; an empty CSV cell means 'unchanged')"
@@ -314,7 +315,7 @@ def _check_rows(t: np.ndarray, v: np.ndarray) -> None:
     if offending.any():
         k, j = np.argwhere(offending)[0]
         name = INPUT_NAMES[j]
-        raise ScheduleError(name, float(t[k]), _input_value_problem(name, float(v[k, j])) or "invalid")
+        raise ScheduleError(name, float(t[k]), input_value_problem(name, float(v[k, j])) or "invalid")
     for flow, needs in _FLOW_NEEDS:
         on = v[:, _INDEX[flow]] > 0.0
         for need in needs:

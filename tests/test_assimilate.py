@@ -1,5 +1,6 @@
 """Assimilation: the cost's weighting, windows, saved models, and exact resume after SIGKILL."""
 
+import math
 import os
 import signal
 import subprocess
@@ -17,7 +18,7 @@ from tankode.schedule import Schedule
 from tankode.simulation import simulate
 from tankode.solver import Backprop, NoGradient
 from tankode.synthetic import solution_to_runs
-from trainers.assimilate import AssimilationConfig, window_edges
+from trainers.assimilate import AssimilationConfig, Assimilator, window_edges
 from trainers.cost import Window, cost, cost_terms
 
 from mhtb_data import MHTB, needs_mhtb
@@ -488,3 +489,68 @@ def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_checkpointed_train
     assert adj.note.endswith(ADJOINT_DIVERGED) and adj.n_evals == 0
     assert "non-finite state" in adj.note or "beyond the property domain" in adj.note
     assert bp.note == "" and bp.n_evals >= 1 and np.isfinite(bp.grad_norm) and bp.grad_norm > 0
+
+
+def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exactly(tmp_path):
+    """mode="replay": each update replays at most ``replay_segments`` earlier segments, all within
+    the data seen so far, drawn alike for the same seed; a run interrupted after window 2 and resumed from its checkpoint ends with the same weights."""
+    data = _data(_short_run(240.0))
+    config = AssimilationConfig(window_s=60.0, iters=2, replay_segments=2, replay_s=40.0, seed=3)
+    a = Assimilator([data], config)
+    reports = a.run().reports
+    assert len(reports) == 4
+    for k in range(1, 4):
+        sample = a._replay(k)
+        t_k = a.windows[k][0]
+        assert 1 <= len(sample) <= 2
+        assert all(0.0 <= start <= t_k - 40.0 + 1e-9 for start, *_ in sample)
+        assert [s[0] for s in sample] == [s[0] for s in a._replay(k)]  # seeded
+    assert a._replay(0) == []  # nothing before the first window
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_two(report):
+        if report.index == 1:
+            raise Stop
+
+    ck = tmp_path / "checkpoint.pt"
+    first = Assimilator([data], config)
+    with pytest.raises(Stop):
+        first.run(checkpoint=ck, on_window=stop_after_two)
+    resumed = Assimilator([data], config).run(checkpoint=ck, resume=True)
+    w_resumed = torch.cat([p.detach().flatten() for p in resumed.closure.parameters()])
+    w_straight = torch.cat([p.detach().flatten() for p in a.closure.parameters()])
+    assert torch.equal(w_resumed, w_straight)
+
+
+def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_initial_agent(monkeypatch):
+    """The carried-over agent is scaled back, w0 + a (w - w0) for a = 1/2, 1/4, ..., until the
+    window integrates; the note says how far; if even the initial agent fails, the error is raised."""
+    from tankode.errors import SimulationError
+
+    data = _data(_short_run(120.0))
+    a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1))
+    params = list(a.closure.parameters())
+    delta = [torch.full_like(p, 0.1) for p in params]
+    with torch.no_grad():
+        for p, w0, d in zip(params, a.w0, delta):
+            p.copy_(w0 + d)
+    real_predict = a.predict
+
+    def predict(s, t0, t_eval, gradient, model=None):  # integrable only within 0.3 of the change
+        if float((params[0] - a.w0[0]).abs().max()) > 0.03 + 1e-12:
+            raise SimulationError("outside the domain", t0, s)
+        return real_predict(s, t0, t_eval, gradient, model)
+
+    monkeypatch.setattr(a, "predict", predict)
+    t0, t1 = a.windows[0]
+    w = Window.from_runs(a.fleet.runs, t0, t1)
+    t_eval = torch.cat([torch.tensor([t0], dtype=torch.float64), w.t_s]).unique()
+    J, note = a._cost_before(a.s0, t0, t_eval, torch.searchsorted(t_eval, w.t_s), w)
+    assert math.isfinite(J) and "keeps 0.25 of its change" in note and "outside the domain" in note
+    for p, w0, d in zip(params, a.w0, delta):
+        assert torch.allclose(p, w0 + 0.25 * d, rtol=0, atol=1e-15)
+    monkeypatch.setattr(a, "predict", lambda *args, **kw: (_ for _ in ()).throw(SimulationError("never", 0.0)))
+    with pytest.raises(SimulationError, match="never"):
+        a._cost_before(a.s0, t0, t_eval, torch.searchsorted(t_eval, w.t_s), w)

@@ -162,3 +162,21 @@ def test_foreign_assimilation_quick(tmp_path):
     # every channel scored on both parts, the fit no better than the noise allows
     assert set(r["fit"]) == set(r["held_out"]) and all(v > 0.5 for v in r["fit"].values())
     assert r["cost_fit"] >= 0.8 * r["floor"] and (tmp_path / "table.md").read_text().startswith("| law |")
+
+
+@needs_mhtb
+@pytest.mark.slow  # two trainings on the three real tests cut to 1 h: 3-4 minutes
+def test_mhtb_rotations_quick(tmp_path):
+    """One rotation and the model trained on all three tests: every test predicted and scored
+    beside the EBM, the saved model applied by ``tankode predict`` to each test as given."""
+    _run("mhtb_rotations.py", tmp_path, timeout_s=1200)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    rows = summary["rows"]
+    assert {r["test"] for r in rows if r["model"] == "EBM (published)"} == {"P263968K", "P263981D", "P263981T"}
+    held = [r for r in rows if r["held_out"]]
+    assert [r["test"] for r in held] == ["P263968K"] and held[0]["trained_on"] == ["P263981D", "P263981T"]
+    for r in rows:
+        assert r["rmse"] is not None and r["rmse"]["p_v_Pa"] > 0, r
+    assert sorted(summary["predict_s"]) == ["P263968K", "P263981D", "P263981T"]
+    mechanisms = json.loads((tmp_path / "model" / "model.json").read_text())["mechanisms"]
+    assert [m["id"] for m in mechanisms] == ["two_node_wall"]

@@ -381,3 +381,41 @@ def test_diffusive_layer_grows_as_a_conduction_depth_and_keeps_the_delivered_hea
     t, traj = _check_growing_layer_run(model, s0, geom, f, phi, inv0, ("diffusive_layer", {"diffusivity_factor": 1.0}))
     grown = (1 / inv0 + traj[:, 8]) ** 2 - 1 / inv0**2  # (T,)
     assert float(grown[-1]) == pytest.approx(2 * D * 1800.0, rel=0.03) and float(traj[-1, 8]) > 0.005
+
+
+def test_two_node_wall_nodes_follow_their_balances_and_the_tank_conserves_energy():
+    """The dry node's balance holds at a state with the nodes apart (``T_d``, ``T_ww`` rebuilt
+    from the model's ``dT_w`` and ``dx``); R_s = 0 is the baseline; a heat load warms the dry
+    wall above the wetted one, the ullage above the baseline's, and the energy gains exactly Q_aw t."""
+    Q = 500.0
+    f = Forcing.rest(1, Q_aw_W=Q)
+    model, s0, geom = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=10.0)])
+    s = model.initial_state(s0).clone()
+    s[:, -1] = 0.7  # x = T_d - T_ww, K
+    ds = model(torch.tensor(0.0, dtype=torch.float64), s, f)
+    fl, _, _ = model.fluxes(s, f)
+    A_w = fl.A_wv_m2 + fl.A_wl_m2
+    a_d = fl.A_wv_m2 / A_w
+    a_w = 1 - a_d
+    x, T_w = s[:, -1], s[:, 4]
+    G = 2 * fl.L_c_m**2 / (10.0 * A_w)
+    r = CW * fl.dA_wl_dH_m * ds[:, 6] / fl.A_i_m2 / A_w  # wall changing node as the level moves
+    # T_w = a_d T_d + a_w T_ww with a_d falling at r / C_w as the level rises
+    dT_d = ds[:, 4] + a_w * ds[:, -1] + r * x / CW
+    dT_ww = ds[:, 4] - a_d * ds[:, -1] + r * x / CW
+    h_wv, h_wl = fl.theta_W_m2K[:, 2], fl.theta_W_m2K[:, 3]
+    dry = a_d * Q - h_wv * fl.A_wv_m2 * (T_w + a_w * x - fl.T_v_K) - G * x + torch.clamp(r, max=0) * x
+    wet = a_w * Q - h_wl * fl.A_wl_m2 * (T_w - a_d * x - fl.T_l_K) + G * x + torch.clamp(r, min=0) * x
+    assert torch.allclose(a_d * CW * dT_d, dry, rtol=1e-6)
+    assert torch.allclose(a_w * CW * dT_ww, wet, rtol=1e-6)
+
+    t, sr = _run(model, s0, geom, f)
+    E = model.total_energy_J(sr[None])[0]
+    assert torch.allclose(E - E[0], Q * t, rtol=1e-7, atol=1e-2)
+    assert sr[-1, -1] > 0.05  # the dry wall runs warmer than the wetted wall
+    base, _, _ = _tank()
+    _, sb = _run(base, s0, geom, f)
+    assert model.observe(sr[-1:])[0, 1] > base.observe(sb[-1:])[0, 1] + 0.05
+    lump, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=0.0)])
+    _, s_lump = _run(lump, s0, geom, f)
+    assert torch.allclose(s_lump[:, :7], sb, rtol=1e-9) and torch.all(s_lump[:, -1] == 0)

@@ -214,6 +214,10 @@ class AssimilationConfig:
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
+    def solver(self):
+        """The ODE solver of the training's forward pass (``integrator`` at ``rtol``/``atol``)."""
+        return _INTEGRATORS[self.integrator](rtol=self.rtol, atol=self.atol, max_rhs_evals=self.max_rhs_evals)
+
     @staticmethod
     def paper(**changes) -> "AssimilationConfig":
         """The paper's setup: fixed windows, dopri5 with the adjoint, one lumped wall, the agent
@@ -364,8 +368,7 @@ class Assimilator:
                                self.fleet.wall_heat_capacity_J_per_K, mechanisms)
         self.s0 = self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))  # (env, n_state)
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3, self.model.extra_state_scales)
-        self.solver = _INTEGRATORS[config.integrator](rtol=config.rtol, atol=config.atol,
-                                                      max_rhs_evals=config.max_rhs_evals)
+        self.solver = config.solver()
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
         self.memories: list[WindowMemory] = []  # one per window trained on, with LaplaceMemory()
         # mode="replay": every trained window's output times and states after its update.
@@ -515,20 +518,18 @@ class Assimilator:
         # of the line search, not a failure of the update.
         opt = BoundedLBFGS(named, bounds, max_iter=per_step, history_size=cfg.history_size, batch=batch,
                            reject=(SimulationError, AssertionError))
-        with torch.no_grad():
-            before = self.parallel.mean(float(cost(self.model.observe(
-                self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]), window)))
+        before, note = self._cost_before(s_start, t_start, t_eval, obs_index, window)
         # (J of the newest window before and after are reported; the replayed segments only train.)
         n_evals = n_iters = 0
         grad_norm = float("nan")
-        note = ""
         if self.parallel.any(len(window) > 0):  # with data parallelism: data on any rank
             for _ in range(n_outer):
                 try:
                     res = opt.step(loss)
                 except (SimulationError, FloatingPointError) as err:
                     # BoundedLBFGS restored the weights of the step's start: keep them, say why.
-                    note = f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
+                    note = (note + "; " if note else "") + \
+                        f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
                     if in_backward and isinstance(cfg.gradient, Adjoint):
                         note += ADJOINT_DIVERGED
                     break
@@ -563,6 +564,47 @@ class Assimilator:
                               n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated,
                               self.trained.values())
         return report, states[:, -1].detach().clone(), opt.state_dict()
+
+    # Shares of its change since the initial agent that an agent which cannot integrate a new
+    # window keeps, tried in turn (_cost_before).
+    _BACKTRACK = (0.5, 0.25, 0.125, 0.0)
+
+    def _cost_before(self, s_start, t_start, t_eval, obs_index, window) -> tuple[float, str]:
+        """J of the newest window with the agent carried over, and a note ("" if nothing was done).
+
+        An agent trained on earlier windows may not integrate a new one: a new operating regime
+        drives its extrapolation out of the property domain or into an impossible state. Such an
+        agent is moved back towards the initial agent, ``w0 + a (w - w0)`` for ``a`` in
+        ``_BACKTRACK``, until the window integrates (``a = 0`` is the initial agent, a physical
+        closure for the residual agent), and the note says how far; only if even the initial
+        agent cannot is the ``SimulationError`` raised. With data parallelism every rank takes
+        the same ``a``.
+        """
+        params = list(self.closure.parameters())
+        trained = [p.detach().clone() for p in params]
+        first_err = None
+        for share in (1.0, *self._BACKTRACK):
+            if share < 1.0:
+                with torch.no_grad():
+                    for p, w, w0 in zip(params, trained, self.w0):
+                        p.copy_(w0 + share * (w - w0))
+            local, failed = float("nan"), False
+            try:
+                with torch.no_grad():
+                    local = float(cost(self.model.observe(
+                        self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]), window))
+            except SimulationError as err:
+                first_err, failed = first_err or err, True
+            if self.parallel.any(failed):
+                continue
+            if share == 1.0:
+                return self.parallel.mean(local), ""
+            why = str(first_err).splitlines()[0] if first_err is not None else "on another rank"
+            return self.parallel.mean(local), (f"the agent carried over could not integrate this window ({why}); "
+                                               f"it keeps {share:g} of its change from the initial agent")
+        if first_err is not None:
+            raise first_err
+        raise SimulationError("even the initial agent cannot integrate this window on another rank", t_start)
 
     # -- the loop ------------------------------------------------------------------------------
 

@@ -555,15 +555,13 @@ def probe_costs(runs, config, closure=None, mechanisms=(), span_s: float = PROBE
     from tankode.model import TankModel
     from tankode.solver import NoGradient
 
-    from .assimilate import _INTEGRATORS
-
     runs = list(runs)
     if not (span_s > 0 and math.isfinite(span_s)):
         raise ValueError(f"span_s must be a positive number of seconds, got {span_s}")
-    closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed))
+    closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base))
     if batches is None:
         batches = probe_batches(runs, max_probes, surrogate)
-    solver = _INTEGRATORS[config.integrator](rtol=config.rtol, atol=config.atol, max_rhs_evals=config.max_rhs_evals)
+    solver = config.solver()
     rates = np.full(len(runs), np.nan)
     for batch in batches:
         fleet = Fleet.from_runs([runs[i] for i in batch], surrogate)

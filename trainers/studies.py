@@ -378,7 +378,7 @@ def minibatch_study(case: SyntheticCase, config: AssimilationConfig, fractions: 
     for frac in fractions:
         for seed in (seeds[:1] if frac >= 1.0 else seeds):
             cfg = dataclasses.replace(config, batch_fraction=frac, seed=int(seed))
-            rec = assimilate_stream([train], cfg, closure=MLPClosure(MLPConfig(seed=agent_seed)),
+            rec = assimilate_stream([train], cfg, closure=MLPClosure(MLPConfig(seed=agent_seed, base=cfg.agent_base)),
                                     label=f"{frac:.0%} seed {seed}")
             err = whole_run_error(rec.closure, case)
             err.pop("obs")

@@ -27,7 +27,7 @@ import torch
 from .config import SurrogateConfig
 from .coolprop import CoolPropFluid
 from .domain import Domain
-from .model import RBF_OUTPUTS, Surrogate, _Phase, evaluate_phase
+from .model import RBF_OUTPUTS, Surrogate, PhaseFit, evaluate_phase
 from .peng_robinson import PengRobinson, TaylorTemperature
 from .rbf import SHAPE_FREE_KERNELS, fit_rbf
 from .saturation import fit_saturation
@@ -100,7 +100,7 @@ def _candidates(config: SurrogateConfig) -> list[tuple[str, float, str]]:
     return out
 
 
-def _fit_phase(fluid, domain, config, phase, pr, sat) -> tuple[_Phase, dict]:
+def _fit_phase(fluid, domain, config, phase, pr, sat) -> tuple[PhaseFit, dict]:
     train = sample_phase(fluid, domain, phase, *_grid(config.n_train, 1.0, lambda n: np.linspace(0, 1, n)))
     centres = sample_phase(fluid, domain, phase, *_grid(config.n_centres, 1.5, _cheb01))
     val = random_phase_points(fluid, domain, phase, config.n_val, config.seed, purpose=1)
@@ -122,7 +122,7 @@ def _fit_phase(fluid, domain, config, phase, pr, sat) -> tuple[_Phase, dict]:
         except RuntimeError as err:
             table.append({"kernel": kernel, "eps": eps, "method": method, "score": math.inf, "error": str(err)})
             continue
-        m = _Phase(phase, rbf, pr, taylor, T_range)
+        m = PhaseFit(phase, rbf, pr, taylor, T_range)
         with torch.no_grad():
             err = _errors(evaluate_phase(m, sat, u_val, rho_val), val)
         row = {"kernel": kernel, "eps": eps, "method": method, "score": _score(err), "max_rel_err": err,

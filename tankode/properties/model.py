@@ -61,7 +61,7 @@ class PhaseProps(NamedTuple):
     beta: Tensor
 
 
-class _Phase(nn.Module):
+class PhaseFit(nn.Module):
     """One phase: its RBF corrections and its PR + Taylor baseline (both buffers-only modules)."""
 
     def __init__(self, name: str, rbf: RBFInterpolant, pr: PengRobinson, taylor: TaylorTemperature,
@@ -82,7 +82,7 @@ def _as_f64(x) -> Tensor:
     return torch.as_tensor(x, dtype=torch.float64)
 
 
-def evaluate_phase(m: _Phase, saturation: SaturationPolynomial, u: Tensor, rho: Tensor) -> PhaseProps:
+def evaluate_phase(m: PhaseFit, saturation: SaturationPolynomial, u: Tensor, rho: Tensor) -> PhaseProps:
     """All properties of phase ``m`` at (u, rho): the hot path of every ODE right-hand side.
 
     Few tensor ops by design (~55, no autograd, no loop over properties): one RBF kernel matrix
@@ -125,7 +125,7 @@ class Surrogate(nn.Module):
         metadata: JSON-serialisable fit record (selection table, conditioning, errors, timings).
     """
 
-    def __init__(self, fluid_name: str, domain: Domain, vapor: _Phase, liquid: _Phase,
+    def __init__(self, fluid_name: str, domain: Domain, vapor: PhaseFit, liquid: PhaseFit,
                  saturation: SaturationPolynomial, metadata: dict | None = None):
         super().__init__()
         self.fluid_name, self.domain = fluid_name, domain
@@ -138,14 +138,14 @@ class Surrogate(nn.Module):
                 for ph, s in sel.items()}
         return f"Surrogate({self.fluid_name!r}, {self.domain}, {kern})"
 
-    def _phase(self, phase: str) -> _Phase:
+    def _phase(self, phase: str) -> PhaseFit:
         if phase == "vapor":
             return self._vapor
         if phase == "liquid":
             return self._liquid
         raise ValueError(f"phase must be 'vapor' or 'liquid', got {phase!r}")
 
-    def _evaluate(self, m: _Phase, u: Tensor, rho: Tensor) -> PhaseProps:
+    def _evaluate(self, m: PhaseFit, u: Tensor, rho: Tensor) -> PhaseProps:
         return evaluate_phase(m, self.saturation_poly, u, rho)
 
     def vapor(self, u: Tensor, rho: Tensor) -> PhaseProps:
@@ -203,7 +203,7 @@ class Surrogate(nn.Module):
 
     def state(self) -> dict:
         """Everything needed to rebuild the surrogate, as tensors and plain python values."""
-        def phase_state(m: _Phase) -> dict:
+        def phase_state(m: PhaseFit) -> dict:
             return {
                 "rbf": m.rbf.state(),
                 "taylor": {"T0_K": m.taylor.T0_K, "u0_J_per_kg": m.taylor.u0_J_per_kg,
@@ -227,13 +227,13 @@ class Surrogate(nn.Module):
     def from_state(state: dict) -> "Surrogate":
         pr = PengRobinson(**state["pr"])
 
-        def phase(name: str) -> _Phase:
+        def phase(name: str) -> PhaseFit:
             s = state[name]
-            return _Phase(name, RBFInterpolant.from_state(s["rbf"]), pr, TaylorTemperature(**s["taylor"]),
+            return PhaseFit(name, RBFInterpolant.from_state(s["rbf"]), pr, TaylorTemperature(**s["taylor"]),
                           tuple(s["T_range_K"]))
 
         return Surrogate(state["fluid_name"], Domain(**state["domain"]), phase("vapor"), phase("liquid"),
                          SaturationPolynomial.from_state(state["saturation"]), state.get("metadata", {}))
 
 
-__all__ = ["Surrogate", "PhaseProps", "RBF_OUTPUTS"]
+__all__ = ["Surrogate", "PhaseProps", "PhaseFit", "RBF_OUTPUTS"]

@@ -1,0 +1,164 @@
+"""One model of the NASA MHTB tank, checked on the test it was not trained on, in all three rotations.
+
+The three digitised liquid-hydrogen tests of the 18.1 m3 MHTB tank (P263968K: 25 % fill, 18.8 W;
+P263981D: 90 %, 54.1 W; P263981T: 50 %, 51.0 W; ``../shared/data/mhtb/``, read in place) are
+streamed through the package's default assimilation (``AssimilationConfig()``: replay windows,
+the Rosenbrock integrator with back-propagation, the residual agent around natural convection,
+the wall as two nodes above and below the liquid line with its sheet resistance trained) with
+30-minute windows (the tests are sampled every 5-30 minutes). For each rotation the model is
+trained on two tests, as one fleet, and predicts the third from its measured state at t = 0 and
+its inputs alone; the pressure, ullage and liquid temperature RMSE are scored on the samples the
+published energy-balance model (EBM) covers, beside the EBM's. Then the model is trained on all
+three tests, saved (``OUT/model``) and applied by ``tankode predict OUT/model RUN.json`` to each
+test, given only its metadata and inputs, as a user would.
+
+What is learned: the agent's weights (a bounded factor on each natural-convection coefficient)
+and the wall's sheet resistance. What is fixed: the tank's geometry, the shell's heat capacity
+(estimated from the aluminium shell, ``tankode.run``), the measured heat load and the 0D model.
+
+Usage: ``python experiments/mhtb_rotations.py [--quick] [--out results/mhtb_rotations]``
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from common import MHTB_ALL_RUNS, MHTB_CHANNELS as CHANNELS, MHTB_DATA, ebm_predictions, mhtb_runs, score_on_ebm_samples  # noqa: E402
+from tankode.compare import channel_rmse, solution_observations  # noqa: E402
+from tankode.saved import save_model  # noqa: E402
+from trainers.assimilate import AssimilationConfig, Assimilator  # noqa: E402
+from trainers.studies import study_args  # noqa: E402
+
+# ---- configuration ---------------------------------------------------------------------------
+# The package's defaults; 30-minute windows (a 10-minute window would often hold no pressure
+# sample) and 10 L-BFGS iterations per window.
+CONFIG = AssimilationConfig(window_s=1800.0, iters=10, seed=0)
+QUICK_CONFIG = dataclasses.replace(CONFIG, iters=2)
+QUICK_UNTIL_S = 3600.0  # --quick: every test cut to 1 h, one rotation
+# -----------------------------------------------------------------------------------------------
+
+
+def _train(runs, config):
+    """Train on ``runs`` (one fleet); return (closure, mechanisms, wall seconds, sheet resistance K/W)."""
+    a = Assimilator(runs, config)
+    start = time.perf_counter()
+    result = a.run()
+    mechanisms = tuple(a.model.mechanisms)
+    shell = next((m.values_dict()["R_sheet_K_per_W"] for m in mechanisms if m.id == "two_node_wall"), None)
+    return result.closure, mechanisms, time.perf_counter() - start, shell
+
+
+def main(argv=None) -> dict:
+    quick, out = study_args(argv, __doc__.splitlines()[0], "tests cut to 1 h, 2 iterations, one rotation",
+                            "mhtb_rotations")
+    config = QUICK_CONFIG if quick else CONFIG
+    runs = {r.name: r.with_measured_initial() for r in mhtb_runs(names=MHTB_ALL_RUNS)}
+    if quick:
+        runs = {n: r.until(QUICK_UNTIL_S) for n, r in runs.items()}
+    ebm = ebm_predictions(list(runs.values()))
+    rows, solutions = [], {}
+    for name, run in runs.items():
+        rmse = channel_rmse(run, ebm[name], CHANNELS)
+        rows.append({"test": name, "model": "EBM (published)", "trained_on": [], "held_out": None,
+                     "rmse": {c: rmse[c]["rmse"] for c in CHANNELS}})
+
+    rotations = [(held, [n for n in runs if n != held]) for held in runs]
+    if quick:
+        rotations = rotations[:1]
+    for held, train in rotations:
+        closure, mechanisms, wall_s, shell = _train([runs[n] for n in train], config)
+        rmse, sol, error = score_on_ebm_samples(runs[held], closure, mechanisms, ebm[held])
+        rows.append({"test": held, "model": "trained on the other two", "trained_on": train, "held_out": True,
+                     "rmse": rmse, "error": error, "train_s": wall_s, "R_sheet_K_per_W": shell})
+        solutions[(held, "held out")] = sol
+        print(json.dumps(rows[-1]), flush=True)
+
+    closure, mechanisms, wall_s, shell = _train(list(runs.values()), config)
+    save_model(out / "model", closure, next(iter(runs.values())).fluid,
+               {"trained_on": list(runs), "config": config.to_json()}, mechanisms=mechanisms)
+    for name, run in runs.items():
+        rmse, sol, error = score_on_ebm_samples(run, closure, mechanisms, ebm[name])
+        rows.append({"test": name, "model": "trained on all three", "trained_on": list(runs), "held_out": False,
+                     "rmse": rmse, "error": error, "train_s": wall_s, "R_sheet_K_per_W": shell})
+        solutions[(name, "all three")] = sol
+        print(json.dumps(rows[-1]), flush=True)
+
+    predict_s = {}
+    for name in runs:  # the saved model on the test as given: its metadata and inputs only
+        start = time.perf_counter()
+        source = MHTB_DATA / f"{name}.json"
+        if quick:
+            source = _cut(source, out / "cut", QUICK_UNTIL_S)
+        proc = subprocess.run([sys.executable, "-m", "tankode.cli", "predict", str(out / "model"), str(source),
+                               "--out", str(out / "predict" / name)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"tankode predict on {name} failed: {proc.stderr.strip()}")
+        predict_s[name] = time.perf_counter() - start
+
+    summary = {"config": json.loads(config.to_json()), "rows": rows, "predict_s": predict_s}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "table.md").write_text(_markdown(rows, predict_s))
+    for name, run in runs.items():
+        _figure(out / f"mhtb_rotations_{name}.png", run, ebm[name], solutions.get((name, "held out")),
+                solutions.get((name, "all three")))
+    print((out / "table.md").read_text())
+    return summary
+
+
+def _cut(source: Path, folder: Path, until_s: float) -> Path:
+    """A copy of an MHTB test cut to ``until_s`` in ``folder`` (for --quick), written by tankode."""
+    from tankode.run_io import read_run, write_run
+
+    json_path, _ = write_run(read_run(source).until(until_s), folder)
+    return json_path
+
+
+def _markdown(rows, predict_s) -> str:
+    lines = ["| test | model | trained on | p_v RMSE [Pa] | T_v RMSE [K] | T_l RMSE [K] | R_sheet [K/W] | training [s] |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["rmse"] is None:
+            cells = f"failed: {r['error']} | | "
+        else:
+            cells = f"{r['rmse']['p_v_Pa']:.0f} | {r['rmse']['T_v_K']:.2f} | {r['rmse']['T_l_K']:.3f}"
+        shell = "" if r.get("R_sheet_K_per_W") is None else f"{r['R_sheet_K_per_W']:.1f}"
+        train = "" if r.get("train_s") is None else f"{r['train_s']:.0f}"
+        lines.append(f"| {r['test']} | {r['model']} | {', '.join(r['trained_on'])} | {cells} | {shell} | {train} |")
+    lines.append("")
+    lines.append("`tankode predict` with the model trained on all three, per test (s): "
+                 + ", ".join(f"{n} {s:.1f}" for n, s in predict_s.items()))
+    return "\n".join(lines) + "\n"
+
+
+def _figure(path, run, ebm, held_out, all_three):
+    fig, ax = plt.subplots(figsize=(7, 4))
+    t, p = run.observations.channel("p_v_Pa")
+    ax.plot(t / 3600, p / 1e3, "k.", label="measured")
+    te, pe = ebm.channel("p_v_Pa")
+    ax.plot(te / 3600, pe / 1e3, "C2--", label="EBM (published)")
+    for sol, label, style in ((held_out, "tankode, trained on the other two", "C0-"),
+                              (all_three, "tankode, trained on all three", "C1-")):
+        if sol is not None:
+            tp, pp = solution_observations(sol).channel("p_v_Pa")
+            ax.plot(tp / 3600, pp / 1e3, style, label=label)
+    ax.set_xlabel("t [h]")
+    ax.set_ylabel("ullage pressure [kPa]")
+    ax.set_title(run.name)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
