@@ -539,7 +539,7 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
     real_predict = a.predict
 
     def predict(s, t0, t_eval, gradient, model=None):  # integrable only within 0.3 of the change
-        if float((params[0] - a.w0[0]).abs().max()) > 0.03 + 1e-12:
+        if float((params[0].detach() - a.w0[0]).abs().max()) > 0.03 + 1e-12:
             raise SimulationError("outside the domain", t0, s)
         return real_predict(s, t0, t_eval, gradient, model)
 
@@ -551,6 +551,14 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
     assert math.isfinite(J) and "keeps 0.25 of its change" in note and "outside the domain" in note
     for p, w0, d in zip(params, a.w0, delta):
         assert torch.allclose(p, w0 + 0.25 * d, rtol=0, atol=1e-15)
+    # the whole update: the optimiser starts from the moved-back agent (trial points beyond the
+    # limit are rejected by the line search)
+    with torch.no_grad():
+        for p, w0, d in zip(params, a.w0, delta):
+            p.copy_(w0 + d)
+    report, _, _ = a.update(0, a.s0)
+    assert "keeps 0.25 of its change" in report.note and math.isfinite(report.cost_after)
+    assert report.cost_after <= report.cost_before
     monkeypatch.setattr(a, "predict", lambda *args, **kw: (_ for _ in ()).throw(SimulationError("never", 0.0)))
     with pytest.raises(SimulationError, match="never"):
         a._cost_before(a.s0, t0, t_eval, torch.searchsorted(t_eval, w.t_s), w)

@@ -508,6 +508,9 @@ class Assimilator:
             in_backward = True
             return J
 
+        # Before the optimiser is built: it may move the weights back (an agent that cannot
+        # integrate this window), and BoundedLBFGS holds the weights it starts from.
+        before, note = self._cost_before(s_start, t_start, t_eval, obs_index, window)
         batch = None
         n_outer, per_step = 1, cfg.iters
         if cfg.batch_fraction < 1.0:
@@ -518,7 +521,6 @@ class Assimilator:
         # of the line search, not a failure of the update.
         opt = BoundedLBFGS(named, bounds, max_iter=per_step, history_size=cfg.history_size, batch=batch,
                            reject=(SimulationError, AssertionError))
-        before, note = self._cost_before(s_start, t_start, t_eval, obs_index, window)
         # (J of the newest window before and after are reported; the replayed segments only train.)
         n_evals = n_iters = 0
         grad_norm = float("nan")
