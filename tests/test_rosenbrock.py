@@ -152,7 +152,7 @@ def test_closure_gradient_matches_dopri5_and_finite_differences():
 @needs_mhtb
 def test_stiff_real_tank_is_integrated_in_few_steps_and_a_window_trains():
     """MHTB P263981D's light wall: ROS34PW2 follows LSODA over 2 h within 1 Pa and 1e-5 K in under
-    1,500 right-hand sides (measured 949 at rtol 1e-8; dopri5 needs 22,274 at rtol 1e-6), and
+    1,500 right-hand sides (measured 1,333 at rtol 1e-8; dopri5 needs 22,274 at rtol 1e-6), and
     a 30-minute window of the untrained agent trains with Backprop (J falls), which the adjoint
     cannot (test_assimilate: the adjoint's backward pass turns the state NaN)."""
     run = read_run(MHTB / "P263981D.json").until(7200.0)
