@@ -43,6 +43,15 @@ def _data(run, noise="high", seed=0):
     return obs
 
 
+class _Stop(Exception):
+    """Raised from ``on_window`` to interrupt a run as a kill would, after its checkpoint."""
+
+
+def _stop_after_two(report):
+    if report.index == 1:
+        raise _Stop
+
+
 def test_window_edges():
     assert window_edges(0.0, 3600.0, 600.0) == [(600.0 * k, 600.0 * (k + 1)) for k in range(6)]
     assert window_edges(0.0, 1000.0, 600.0) == [(0.0, 600.0), (600.0, 1000.0)]
@@ -255,16 +264,9 @@ def test_laplace_memory_survives_an_interruption(tmp_path, window_start):
     whole = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run()
     assert bool(whole.reports[-1].start_offset_sigmas) == (window_start == "joint")
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_two(report):
-        if report.index == 1:
-            raise Stop
-
     ck = tmp_path / "ck.pt"
-    with pytest.raises(Stop):
-        Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run(checkpoint=ck, on_window=stop_after_two)
+    with pytest.raises(_Stop):
+        Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run(checkpoint=ck, on_window=_stop_after_two)
     resumed = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1)))
     result = resumed.run(checkpoint=ck, resume=True)
     assert len(resumed.memories) == 3
@@ -507,17 +509,10 @@ def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exac
         assert [s[0] for s in sample] == [s[0] for s in a._replay(k)]  # seeded
     assert a._replay(0) == []  # nothing before the first window
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_two(report):
-        if report.index == 1:
-            raise Stop
-
     ck = tmp_path / "checkpoint.pt"
     first = Assimilator([data], config)
-    with pytest.raises(Stop):
-        first.run(checkpoint=ck, on_window=stop_after_two)
+    with pytest.raises(_Stop):
+        first.run(checkpoint=ck, on_window=_stop_after_two)
     resumed = Assimilator([data], config).run(checkpoint=ck, resume=True)
     w_resumed = torch.cat([p.detach().flatten() for p in resumed.closure.parameters()])
     w_straight = torch.cat([p.detach().flatten() for p in a.closure.parameters()])

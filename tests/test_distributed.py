@@ -233,6 +233,17 @@ def _wait_for(path: Path, procs, timeout_s: float) -> None:
         time.sleep(0.05)
 
 
+def _signal_rank_1_in_window_2(procs, out: Path, sig, timeout_s: float) -> tuple[float, list[str]]:
+    """Send ``sig`` to rank 1 once window 1 is checkpointed and window 2 has begun; wait for rank 0
+    to end (at most ``timeout_s``). Returns (seconds rank 0 took to end, its stderr lines)."""
+    _wait_for(out / "checkpoint.pt", procs, 240)
+    time.sleep(0.3)
+    procs[1].send_signal(sig)
+    sent = time.monotonic()
+    procs[0].wait(timeout=timeout_s)
+    return time.monotonic() - sent, procs[0].stderr.read().strip().splitlines()
+
+
 def _finish(procs) -> None:
     for p in procs:
         p.wait(timeout=300)
@@ -246,13 +257,7 @@ def test_killing_a_rank_mid_update_ends_the_job_and_resume_matches_the_uninterru
     _finish(_start_ranks(run_files, expected))
     out = tmp_path / "model"
     procs = _start_ranks(run_files, out)
-    _wait_for(out / "checkpoint.pt", procs, 240)  # window 1 is done, window 2 has begun
-    time.sleep(0.3)
-    procs[1].send_signal(signal.SIGKILL)
-    killed = time.monotonic()
-    procs[0].wait(timeout=60)
-    waited = time.monotonic() - killed
-    stderr = procs[0].stderr.read().strip().splitlines()
+    waited, stderr = _signal_rank_1_in_window_2(procs, out, signal.SIGKILL, timeout_s=60)
     procs[1].wait()
     assert waited < 60
     assert procs[0].returncode == 2
@@ -270,13 +275,7 @@ def test_a_hung_rank_ends_the_job_after_the_collective_timeout(run_files, tmp_pa
     out = tmp_path / "model"
     procs = _start_ranks(run_files, out, "--collective-timeout", "15")
     try:
-        _wait_for(out / "checkpoint.pt", procs, 240)
-        time.sleep(0.3)
-        procs[1].send_signal(signal.SIGSTOP)
-        stopped = time.monotonic()
-        procs[0].wait(timeout=90)
-        waited = time.monotonic() - stopped
-        stderr = procs[0].stderr.read().strip().splitlines()
+        waited, stderr = _signal_rank_1_in_window_2(procs, out, signal.SIGSTOP, timeout_s=90)
     finally:
         procs[1].send_signal(signal.SIGKILL)
         procs[1].wait()
