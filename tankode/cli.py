@@ -150,7 +150,8 @@ def cmd_assimilate(args) -> int:
                                 train_mechanisms=tuple(args.train_mechanisms),
                                 replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
                                 replay_s=args.replay_s or AssimilationConfig.replay_s,
-                                wall=args.wall or AssimilationConfig.wall)
+                                wall=args.wall or AssimilationConfig.wall,
+                                carry_over=args.carry_over or AssimilationConfig.carry_over)
     if writes:
         out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
@@ -335,6 +336,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the wall: dry and wetted parts at their own temperatures, the shell's sheet resistance "
                         "trained (two_node), or one lumped temperature (lumped, the paper's); default: "
                         "AssimilationConfig's")
+    a.add_argument("--carry-over", choices=("validated", "integrable"), default=None,
+                   help="how an update starts from the previous windows' agent: checked on the new window against "
+                        "the initial agent and shrunk towards it where it predicts worse (validated), or as it is "
+                        "unless it cannot integrate the window (integrable, the paper's); default: AssimilationConfig's")
     a.add_argument("--replay-segments", type=int, default=None, help="--mode replay: earlier segments per update")
     a.add_argument("--replay-s", type=float, default=None, help="--mode replay: length of each segment in s")
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")

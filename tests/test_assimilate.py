@@ -1,5 +1,6 @@
 """Assimilation: the cost's weighting, windows, saved models, and exact resume after SIGKILL."""
 
+import dataclasses
 import math
 import os
 import signal
@@ -519,19 +520,35 @@ def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exac
     assert torch.equal(w_resumed, w_straight)
 
 
+def _window_inputs(a, k=0):
+    t0, t1 = a.windows[k]
+    w = Window.from_runs(a.fleet.runs, t0, t1)
+    t_eval = torch.cat([torch.tensor([t0], dtype=torch.float64), w.t_s]).unique()
+    return t0, t_eval, torch.searchsorted(t_eval, w.t_s), w
+
+
+def _cost_with_share(a, delta, share, t0, t_eval, index, w):
+    with torch.no_grad():
+        for p, w0, d in zip(a.closure.parameters(), a.w0, delta):
+            p.copy_(w0 + share * d)
+        return float(cost(a.model.observe(a.predict(a.s0, t0, t_eval, NoGradient())[:, index]), w))
+
+
 def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_initial_agent(monkeypatch):
-    """The carried-over agent is scaled back, w0 + a (w - w0) for a = 1/2, 1/4, ..., until the
-    window integrates; the note says how far; if even the initial agent fails, the error is raised."""
+    """The carried-over agent is scaled back, w0 + a (w - w0) for a in (1/2, 1/4, 1/8, 0): the
+    update starts from the candidate that integrates with the lowest J; the note says which and
+    why; if no candidate integrates, the error is raised."""
     from tankode.errors import SimulationError
 
     data = _data(_short_run(120.0))
     a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1))
     params = list(a.closure.parameters())
     delta = [torch.full_like(p, 0.1) for p in params]
-    with torch.no_grad():
-        for p, w0, d in zip(params, a.w0, delta):
-            p.copy_(w0 + d)
     real_predict = a.predict
+    inputs = _window_inputs(a)
+    # J of the candidates that integrate, measured without the limit below
+    J = {share: _cost_with_share(a, delta, share, *inputs) for share in (0.25, 0.125, 0.0)}
+    best = min(J, key=lambda s: (J[s], -s))
 
     def predict(s, t0, t_eval, gradient, model=None):  # integrable only within 0.3 of the change
         if float((params[0].detach() - a.w0[0]).abs().max()) > 0.03 + 1e-12:
@@ -539,21 +556,74 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
         return real_predict(s, t0, t_eval, gradient, model)
 
     monkeypatch.setattr(a, "predict", predict)
-    t0, t1 = a.windows[0]
-    w = Window.from_runs(a.fleet.runs, t0, t1)
-    t_eval = torch.cat([torch.tensor([t0], dtype=torch.float64), w.t_s]).unique()
-    J, note = a._cost_before(a.s0, t0, t_eval, torch.searchsorted(t_eval, w.t_s), w)
-    assert math.isfinite(J) and "keeps 0.25 of its change" in note and "outside the domain" in note
+    with torch.no_grad():
+        for p, w0, d in zip(params, a.w0, delta):
+            p.copy_(w0 + d)
+    J_before, note = a._cost_before(a.s0, *inputs)
+    assert J_before == pytest.approx(J[best], rel=1e-8)
+    assert f"keeps {best:g} of its change" in note and "could not integrate" in note and "outside the domain" in note
     for p, w0, d in zip(params, a.w0, delta):
-        assert torch.allclose(p, w0 + 0.25 * d, rtol=0, atol=1e-15)
+        assert torch.allclose(p, w0 + best * d, rtol=0, atol=1e-15)
     # the whole update: the optimiser starts from the moved-back agent (trial points beyond the
     # limit are rejected by the line search)
     with torch.no_grad():
         for p, w0, d in zip(params, a.w0, delta):
             p.copy_(w0 + d)
     report, _, _ = a.update(0, a.s0)
-    assert "keeps 0.25 of its change" in report.note and math.isfinite(report.cost_after)
+    assert f"keeps {best:g} of its change" in report.note and math.isfinite(report.cost_after)
     assert report.cost_after <= report.cost_before
     monkeypatch.setattr(a, "predict", lambda *args, **kw: (_ for _ in ()).throw(SimulationError("never", 0.0)))
+    with torch.no_grad():
+        for p, w0, d in zip(params, a.w0, delta):
+            p.copy_(w0 + d)
     with pytest.raises(SimulationError, match="never"):
-        a._cost_before(a.s0, t0, t_eval, torch.searchsorted(t_eval, w.t_s), w)
+        a._cost_before(a.s0, *inputs)
+    # the paper's setup (carry_over="integrable"): the largest share that integrates
+    monkeypatch.setattr(a, "predict", predict)
+    a.config = dataclasses.replace(a.config, carry_over="integrable")
+    with torch.no_grad():
+        for p, w0, d in zip(params, a.w0, delta):
+            p.copy_(w0 + d)
+    J_before, note = a._cost_before(a.s0, *inputs)
+    assert J_before == pytest.approx(J[0.25], rel=1e-8) and "keeps 0.25 of its change" in note
+
+
+def test_an_agent_that_extrapolates_worse_than_the_initial_agent_moves_back():
+    """A carried-over agent that integrates the new window but predicts it worse than the initial
+    agent (here: every coefficient 20x its base) starts the update from the best of its
+    shrinkages; one that predicts it no worse is kept as it is."""
+    data = _data(_short_run(120.0))
+    a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1))
+    last = a.closure.net[-1].bias
+    delta = [torch.zeros_like(p) for p in a.closure.parameters()]
+    delta[[i for i, p in enumerate(a.closure.parameters()) if p is last][0]] += 1.0  # tanh(1) span: x e^3.5
+    inputs = _window_inputs(a)
+    J = {share: _cost_with_share(a, delta, share, *inputs) for share in (1.0, 0.5, 0.25, 0.125, 0.0)}
+    assert J[1.0] > J[0.0]  # the premise: the inflated agent predicts worse
+    best = min(J, key=lambda s: (J[s], -s))
+    _cost_with_share(a, delta, 1.0, *inputs)
+    J_before, note = a._cost_before(a.s0, *inputs)
+    assert J_before == pytest.approx(J[best], rel=1e-8) and J_before < J[1.0]
+    assert f"keeps {best:g} of its change" in note and "predicted this window at J" in note
+    assert torch.allclose(last, a.w0[[i for i, p in enumerate(a.closure.parameters()) if p is last][0]] + best)
+    # an agent no worse than the initial one is kept, without a note
+    keep = min(J, key=J.get)
+    _cost_with_share(a, delta, keep, *inputs)
+    J_kept, note = a._cost_before(a.s0, *inputs)
+    assert note == "" and J_kept == pytest.approx(J[keep], rel=1e-8)
+
+
+def test_hold_out_forecasts_from_the_carried_state():
+    """``hold_out``'s forecast starts from the state the assimilation carried to the split. With
+    one window covering the training part, that state is the final agent's own trajectory from
+    the run's start, so the forecast equals the whole-run simulation's remainder (to the two
+    solvers' tolerances), and the windows' cost equals that simulation's cost over the fit."""
+    from trainers.evaluate import hold_out
+
+    data = _data(_short_run(200.0), noise="low")
+    h = hold_out(data, AssimilationConfig(window_s=140.0, iters=2), split=0.7)
+    assert h.split_s == pytest.approx(140.0) and len(h.window_wall_s) == 1
+    assert set(h.held_out) == set(h.held_out_from_start) == {"p_v_Pa", "T_v_K", "T_l_K", "T_w_K", "H_l_m"}
+    for c in h.held_out:
+        assert h.held_out[c] == pytest.approx(h.held_out_from_start[c], rel=0.02, abs=0.02), c
+    assert h.cost_windows == pytest.approx(h.cost_fit, rel=0.02)

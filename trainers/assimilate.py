@@ -134,6 +134,12 @@ class AssimilationConfig:
             agent; ``"lumped"``: the paper's one wall temperature.
         wall_R_sheet_K_per_W: the sheet resistance the two-node wall starts from (K/W;
             aluminium of 10 mm at 20 K; the training moves it).
+        carry_over: how an update starts from the agent the previous windows left:
+            ``"validated"`` (default: the agent is first checked on the new window, which it has
+            not seen, against the initial agent; one that predicts it worse or cannot integrate
+            it starts from the best of its shrinkages towards the initial agent,
+            ``Assimilator._cost_before``) or ``"integrable"`` (the paper: the agent as it is,
+            shrunk only where it cannot integrate the window).
         agent_base: the base closure of a fresh agent (``MLPConfig.base``): ``"natural"``
             (textbook convection on each surface, which the agent corrects), ``"reference"`` or
             ``"constant"`` (the paper's agent, from fixed mid-range coefficients).
@@ -167,6 +173,7 @@ class AssimilationConfig:
     replay_s: float = 200.0
     wall: str = "two_node"
     wall_R_sheet_K_per_W: float = 10.0
+    carry_over: str = "validated"
     agent_base: str = "natural"
 
     def __post_init__(self):
@@ -178,6 +185,8 @@ class AssimilationConfig:
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
         if self.agent_base not in BASES:
             raise ValueError(f"agent_base must be one of {BASES}, got {self.agent_base!r}")
+        if self.carry_over not in ("validated", "integrable"):
+            raise ValueError(f"carry_over must be 'validated' or 'integrable', got {self.carry_over!r}")
         if self.wall not in ("two_node", "lumped"):
             raise ValueError(f"wall must be 'two_node' or 'lumped', got {self.wall!r}")
         if not (0 < self.wall_R_sheet_K_per_W < 1e4):
@@ -221,10 +230,10 @@ class AssimilationConfig:
     @staticmethod
     def paper(**changes) -> "AssimilationConfig":
         """The paper's setup: fixed windows, dopri5 with the adjoint, one lumped wall, the agent
-        from constant coefficients; ``changes`` override fields (e.g. ``window_s``, ``iters``).
+        from constant coefficients, carried from window to window unchecked; ``changes`` override fields (e.g. ``window_s``, ``iters``).
         The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
-                                          agent_base="constant"), **changes)
+                                          agent_base="constant", carry_over="integrable"), **changes)
 
     def to_json(self) -> str:
         d = asdict(self)
@@ -245,6 +254,7 @@ class AssimilationConfig:
         d.setdefault("base_prior_weight", 0.0)
         d.setdefault("agent_base", "constant")  # the only agent before the residual one existed
         d.setdefault("wall_R_sheet_K_per_W", 10.0)
+        d.setdefault("carry_over", "integrable")  # before the check existed
         d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
@@ -286,11 +296,17 @@ class WindowReport:
 
 @dataclass
 class AssimilationResult:
-    """The trained closure and the per-window reports."""
+    """The trained closure, the per-window reports and the state the stream was carried to.
+
+    ``state_end``: ``(env, n_state)`` the model's state at the last window's end (this process's
+    runs), integrated window by window from the carried state with each window's updated agent:
+    where a real-time twin stands when the data stop, and where a forecast starts.
+    """
 
     closure: MLPClosure
     config: AssimilationConfig
     reports: list[WindowReport] = field(default_factory=list)
+    state_end: Tensor | None = None
 
 
 # window_start="joint": the offset's name among the trained parameters, and its box (noise
@@ -567,29 +583,41 @@ class Assimilator:
                               self.trained.values())
         return report, states[:, -1].detach().clone(), opt.state_dict()
 
-    # Shares of its change since the initial agent that an agent which cannot integrate a new
-    # window keeps, tried in turn (_cost_before).
-    _BACKTRACK = (0.5, 0.25, 0.125, 0.0)
+    # Shares of its change since the initial agent that the carried-over agent may keep, tried
+    # when it predicts the new window worse than the initial agent or cannot integrate it
+    # (_cost_before).
+    _BACKTRACK = (0.5, 0.25, 0.125)
 
     def _cost_before(self, s_start, t_start, t_eval, obs_index, window) -> tuple[float, str]:
         """J of the newest window with the agent carried over, and a note ("" if nothing was done).
 
-        An agent trained on earlier windows may not integrate a new one: a new operating regime
-        drives its extrapolation out of the property domain or into an impossible state. Such an
-        agent is moved back towards the initial agent, ``w0 + a (w - w0)`` for ``a`` in
-        ``_BACKTRACK``, until the window integrates (``a = 0`` is the initial agent, a physical
-        closure for the residual agent), and the note says how far; only if even the initial
-        agent cannot is the ``SimulationError`` raised. With data parallelism every rank takes
-        the same ``a``.
+        Before its update the newest window is data the agent has not seen: a check of how the
+        agent extrapolates. An agent trained on earlier windows can extrapolate badly to a new
+        operating regime (a warm-gas injection after a quiet window: its learned factors swing
+        to their bounds and the window's J rises a thousandfold), or not integrate the window at
+        all (out of the property domain, an impossible state). The carried agent ``w`` is
+        therefore compared with the initial agent ``w0`` (a physical closure for the residual
+        agent) on the window; if ``w`` integrates and predicts no worse, it is kept. Otherwise the
+        agent starts the update from the best-predicting of ``w0 + a (w - w0)``, ``a`` in
+        ``(0.5, 0.25, 0.125, 0)`` (the window's data choose how much of the earlier learning
+        carries into the new regime; replayed segments then teach the earlier data again), and the
+        note says which and why. With ``carry_over="integrable"`` (the paper's setup) the agent is
+        kept as it is where it integrates the window, else the largest share that does is taken.
+        Only if no candidate integrates is the first ``SimulationError`` raised. With data
+        parallelism every rank compares the fleet's J and takes the same ``a``.
         """
         params = list(self.closure.parameters())
         trained = [p.detach().clone() for p in params]
         first_err = None
-        for share in (1.0, *self._BACKTRACK):
-            if share < 1.0:
-                with torch.no_grad():
-                    for p, w, w0 in zip(params, trained, self.w0):
-                        p.copy_(w0 + share * (w - w0))
+
+        def apply(share):
+            with torch.no_grad():
+                for p, w, w0 in zip(params, trained, self.w0):
+                    p.copy_(w0 + share * (w - w0))
+
+        def cost_at(share):
+            nonlocal first_err
+            apply(share)
             local, failed = float("nan"), False
             try:
                 with torch.no_grad():
@@ -597,16 +625,51 @@ class Assimilator:
                         self.predict(s_start, t_start, t_eval, NoGradient())[:, obs_index]), window))
             except SimulationError as err:
                 first_err, failed = first_err or err, True
-            if self.parallel.any(failed):
-                continue
-            if share == 1.0:
-                return self.parallel.mean(local), ""
+            return None if self.parallel.any(failed) else self.parallel.mean(local)
+
+        moved = any(bool((w != w0).any()) for w, w0 in zip(trained, self.w0))
+        J = {1.0: cost_at(1.0)}
+        if not moved:
+            if J[1.0] is None:
+                raise first_err or SimulationError("the initial agent cannot integrate this window on another rank",
+                                                   t_start)
+            return J[1.0], ""
+        if self.config.carry_over == "integrable":  # the largest share that integrates
+            for share in (1.0, *self._BACKTRACK, 0.0):
+                J[share] = J[share] if share in J else cost_at(share)
+                if J[share] is not None:
+                    break
+            ok = {share: J[share]} if J[share] is not None else {}
+        else:
+            ok = self._validated(J, cost_at)
+        if not ok:
+            if first_err is not None:
+                raise first_err
+            raise SimulationError("even the initial agent cannot integrate this window on another rank", t_start)
+        (share, J_share), = ok.items()
+        apply(share)
+        if share == 1.0:
+            return J_share, ""
+        if J[1.0] is None:
             why = str(first_err).splitlines()[0] if first_err is not None else "on another rank"
-            return self.parallel.mean(local), (f"the agent carried over could not integrate this window ({why}); "
-                                               f"it keeps {share:g} of its change from the initial agent")
-        if first_err is not None:
-            raise first_err
-        raise SimulationError("even the initial agent cannot integrate this window on another rank", t_start)
+            why = f"could not integrate this window ({why})"
+        else:
+            why = f"predicted this window at J {J[1.0]:.4g}, the initial agent at {J[0.0]:.4g}"
+        return J_share, f"the agent carried over {why}; it keeps {share:g} of its change from the initial agent"
+
+    def _validated(self, J: dict, cost_at) -> dict:
+        """``carry_over="validated"``: ``{share: J}`` of the candidate to start from (empty if none
+        integrates), given ``J[1.0]`` and the window's ``cost_at(share)`` (``_cost_before``)."""
+        J[0.0] = cost_at(0.0)
+        if J[1.0] is not None and (J[0.0] is None or J[1.0] <= J[0.0]):
+            return {1.0: J[1.0]}
+        for share in self._BACKTRACK:
+            J[share] = cost_at(share)
+        ok = {a: j for a, j in J.items() if j is not None}
+        if not ok:
+            return {}
+        share = min(ok, key=lambda a: (ok[a], -a))  # the lowest J; on a tie, the most of the learning
+        return {share: ok[share]}
 
     # -- the loop ------------------------------------------------------------------------------
 
@@ -627,6 +690,7 @@ class Assimilator:
         restored = self.parallel.read_checkpoint(checkpoint) if resume and checkpoint is not None else None
         if restored is not None:
             k0, s_next = self._restore(restored, result)
+            result.state_end = s_next
         writer = None
         if logdir is not None and self.parallel.writes:
             from .logger import TrainingLogger
@@ -641,6 +705,7 @@ class Assimilator:
             report, s_end, opt_state = self.update(k, s_next)
             s_next = s_end
             result.reports.append(report)
+            result.state_end = s_next
             if writer is not None:
                 writer.log_window(report, self, s_next)
             if checkpoint is not None:

@@ -12,6 +12,7 @@ from tankode.fleet import Fleet
 from tankode.model import TankModel
 from tankode.run import NOISE_KEYS
 from tankode.simulation import simulate
+from tankode.solver import NoGradient
 
 from .cost import CHANNELS, Window, cost_terms
 
@@ -82,16 +83,18 @@ def identification_error(closure, runs, truth_solution, during) -> dict:
 
 
 
-def rmse_sigmas(run, solution, t0_s: float, t1_s: float, env: int = 0) -> dict[str, float]:
-    """RMSE of ``solution`` (environment ``env``) against ``run``'s samples in ``[t0_s, t1_s]``, per
-    measured channel, in units of the channel's ``noise_std`` (1 = the noise)."""
-    t = solution.t_s.numpy()
+def rmse_sigmas(run, t_s: torch.Tensor, observations: torch.Tensor, t0_s: float, t1_s: float,
+                env: int = 0) -> dict[str, float]:
+    """RMSE of predicted ``observations`` ``(env, T, 5)`` at ``t_s`` ``(T,)`` (environment ``env``,
+    linearly interpolated) against ``run``'s samples in ``[t0_s, t1_s]``, per measured channel, in
+    units of the channel's ``noise_std`` (1 = the noise)."""
+    t = t_s.numpy()
     out = {}
     for j, (c, k) in enumerate(zip(CHANNELS, NOISE_KEYS)):
         tt, v = run.observations.channel(c)
         sel = (tt >= t0_s) & (tt <= t1_s)
         if sel.any():
-            pred = np.interp(tt[sel], t, solution.observations[env, :, j].numpy())
+            pred = np.interp(tt[sel], t, observations[env, :, j].numpy())
             out[c] = float(np.sqrt(np.mean((pred - v[sel]) ** 2)) / run.noise_std[k])
     return out
 
@@ -102,9 +105,14 @@ class HoldOut:
 
     Attributes:
         run: the run's name. split_s: the time (s) the training data end.
-        fit: RMSE per channel over the training part, in noise sigmas, of the final model
-            simulated from the run's start. held_out: the same over the remainder (a
-            prediction from the state the model reaches at the split, with no refit).
+        held_out: RMSE per channel over the remainder, in noise sigmas, of the forecast from
+            the state the assimilation carried to the split (``AssimilationResult.state_end``)
+            with the final agent and no refit: what a real-time twin predicts when its data stop.
+        cost_windows: the mean over the windows of each window's J after its update (the
+            training part as the stream fitted it, each window from its carried state).
+        fit, held_out_from_start: RMSE per channel over the training part and over the
+            remainder of the final agent simulated from the run's start (a stricter check: one
+            agent for every regime of the training part, the state carried by it alone).
         cost_fit: the cost J of that simulation over the training part; ``floor`` is J at the
             noise (0.5 per measured channel).
         window_wall_s: each window update's wall time (s); ``window_s`` the windows' length.
@@ -113,8 +121,10 @@ class HoldOut:
 
     run: str
     split_s: float
-    fit: dict
     held_out: dict
+    cost_windows: float
+    fit: dict
+    held_out_from_start: dict
     cost_fit: float
     floor: float
     window_wall_s: tuple
@@ -128,20 +138,30 @@ class HoldOut:
 
 
 def hold_out(run, config, split: float = 0.7, closure=None, on_window=None) -> HoldOut:
-    """Train an agent on the first ``split`` of ``run`` with ``config``; simulate the whole run from
-    its start with the trained model and judge both parts (``HoldOut``)."""
+    """Train an agent on the first ``split`` of ``run`` with ``config`` and judge it (``HoldOut``):
+    the forecast of the remainder from the state the assimilation carried to the split, and the
+    whole run simulated from its start with the trained model."""
     from .assimilate import Assimilator
 
     t_split = run.t0_s + split * (run.t_end_s - run.t0_s)
     assimilator = Assimilator([run.until(t_split)], config, closure=closure)
     result = assimilator.run(on_window=on_window)
     mechanisms = tuple(assimilator.model.mechanisms)
+    forecaster = Assimilator([run], config, closure=result.closure, mechanisms=mechanisms)
+    t_eval = torch.cat([torch.tensor([t_split], dtype=torch.float64),
+                        torch.arange(t_split + 30.0, run.t_end_s, 30.0, dtype=torch.float64),
+                        torch.tensor([run.t_end_s], dtype=torch.float64)]).unique()
+    with torch.no_grad():
+        states = forecaster.predict(result.state_end, t_split, t_eval, NoGradient())
+        forecast = forecaster.model.observe(states)
     sol = simulate(run, result.closure, mechanisms=mechanisms, output_dt_s=30.0)
-    fit = rmse_sigmas(run, sol, run.t0_s, t_split)
+    fit = rmse_sigmas(run, sol.t_s, sol.observations, run.t0_s, t_split)
     w = Window.from_runs([run], run.t0_s - 1e-9, t_split)
     idx = torch.searchsorted(sol.t_s, w.t_s)
     cost_fit = float(cost_terms(sol.observations[:, idx], w).sum())
-    return HoldOut(run.name, t_split, fit, rmse_sigmas(run, sol, t_split, run.t_end_s), cost_fit, 0.5 * len(fit),
+    cost_windows = float(np.mean([r.cost_after for r in result.reports]))
+    return HoldOut(run.name, t_split, rmse_sigmas(run, t_eval, forecast, t_split, run.t_end_s), cost_windows, fit,
+                   rmse_sigmas(run, sol.t_s, sol.observations, t_split, run.t_end_s), cost_fit, 0.5 * len(fit),
                    tuple(r.wall_s for r in result.reports), config.window_s,
                    {m.id: m.values_dict() for m in mechanisms})
 
