@@ -527,10 +527,16 @@ def _window_inputs(a, k=0):
     return t0, t_eval, torch.searchsorted(t_eval, w.t_s), w
 
 
-def _cost_with_share(a, delta, share, t0, t_eval, index, w):
+def _set_share(a, delta, share):
+    """Set the agent's weights to ``w0 + share * delta``."""
     with torch.no_grad():
         for p, w0, d in zip(a.closure.parameters(), a.w0, delta):
             p.copy_(w0 + share * d)
+
+
+def _cost_with_share(a, delta, share, t0, t_eval, index, w):
+    _set_share(a, delta, share)
+    with torch.no_grad():
         return float(cost(a.model.observe(a.predict(a.s0, t0, t_eval, NoGradient())[:, index]), w))
 
 
@@ -556,9 +562,7 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
         return real_predict(s, t0, t_eval, gradient, model)
 
     monkeypatch.setattr(a, "predict", predict)
-    with torch.no_grad():
-        for p, w0, d in zip(params, a.w0, delta):
-            p.copy_(w0 + d)
+    _set_share(a, delta, 1.0)
     J_before, note = a._cost_before(a.s0, *inputs)
     assert J_before == pytest.approx(J[best], rel=1e-8)
     assert f"keeps {best:g} of its change" in note and "could not integrate" in note and "outside the domain" in note
@@ -566,49 +570,44 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
         assert torch.allclose(p, w0 + best * d, rtol=0, atol=1e-15)
     # the whole update: the optimiser starts from the moved-back agent (trial points beyond the
     # limit are rejected by the line search)
-    with torch.no_grad():
-        for p, w0, d in zip(params, a.w0, delta):
-            p.copy_(w0 + d)
+    _set_share(a, delta, 1.0)
     report, _, _ = a.update(0, a.s0)
     assert f"keeps {best:g} of its change" in report.note and math.isfinite(report.cost_after)
     assert report.cost_after <= report.cost_before
     monkeypatch.setattr(a, "predict", lambda *args, **kw: (_ for _ in ()).throw(SimulationError("never", 0.0)))
-    with torch.no_grad():
-        for p, w0, d in zip(params, a.w0, delta):
-            p.copy_(w0 + d)
+    _set_share(a, delta, 1.0)
     with pytest.raises(SimulationError, match="never"):
         a._cost_before(a.s0, *inputs)
     # the paper's setup (carry_over="integrable"): the largest share that integrates
     monkeypatch.setattr(a, "predict", predict)
     a.config = dataclasses.replace(a.config, carry_over="integrable")
-    with torch.no_grad():
-        for p, w0, d in zip(params, a.w0, delta):
-            p.copy_(w0 + d)
+    _set_share(a, delta, 1.0)
     J_before, note = a._cost_before(a.s0, *inputs)
     assert J_before == pytest.approx(J[0.25], rel=1e-8) and "keeps 0.25 of its change" in note
 
 
 def test_an_agent_that_extrapolates_worse_than_the_initial_agent_moves_back():
     """A carried-over agent that integrates the new window but predicts it worse than the initial
-    agent (here: every coefficient 20x its base) starts the update from the best of its
+    agent (here: every coefficient 33 times its base) starts the update from the best of its
     shrinkages; one that predicts it no worse is kept as it is."""
     data = _data(_short_run(120.0))
     a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1))
     last = a.closure.net[-1].bias
+    i_last = [i for i, p in enumerate(a.closure.parameters()) if p is last][0]
     delta = [torch.zeros_like(p) for p in a.closure.parameters()]
-    delta[[i for i, p in enumerate(a.closure.parameters()) if p is last][0]] += 1.0  # tanh(1) span: x e^3.5
+    delta[i_last] += 1.0  # a factor e^(span tanh 1) = e^3.5 on each coefficient
     inputs = _window_inputs(a)
     J = {share: _cost_with_share(a, delta, share, *inputs) for share in (1.0, 0.5, 0.25, 0.125, 0.0)}
     assert J[1.0] > J[0.0]  # the premise: the inflated agent predicts worse
     best = min(J, key=lambda s: (J[s], -s))
-    _cost_with_share(a, delta, 1.0, *inputs)
+    _set_share(a, delta, 1.0)
     J_before, note = a._cost_before(a.s0, *inputs)
     assert J_before == pytest.approx(J[best], rel=1e-8) and J_before < J[1.0]
     assert f"keeps {best:g} of its change" in note and "predicted this window at J" in note
-    assert torch.allclose(last, a.w0[[i for i, p in enumerate(a.closure.parameters()) if p is last][0]] + best)
+    assert torch.allclose(last, a.w0[i_last] + best)
     # an agent no worse than the initial one is kept, without a note
     keep = min(J, key=J.get)
-    _cost_with_share(a, delta, keep, *inputs)
+    _set_share(a, delta, keep)
     J_kept, note = a._cost_before(a.s0, *inputs)
     assert note == "" and J_kept == pytest.approx(J[keep], rel=1e-8)
 

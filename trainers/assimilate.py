@@ -72,6 +72,7 @@ from .window_start import StartEstimate
 
 _INTEGRATORS = {"dopri5": AdaptiveRK, "rosenbrock": Rosenbrock}
 MODES = ("fixed", "growing", "replay")
+CARRY_OVERS = ("validated", "integrable")  # AssimilationConfig.carry_over
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop, "Checkpointed": Checkpointed}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
 
@@ -185,8 +186,8 @@ class AssimilationConfig:
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
         if self.agent_base not in BASES:
             raise ValueError(f"agent_base must be one of {BASES}, got {self.agent_base!r}")
-        if self.carry_over not in ("validated", "integrable"):
-            raise ValueError(f"carry_over must be 'validated' or 'integrable', got {self.carry_over!r}")
+        if self.carry_over not in CARRY_OVERS:
+            raise ValueError(f"carry_over must be one of {CARRY_OVERS}, got {self.carry_over!r}")
         if self.wall not in ("two_node", "lumped"):
             raise ValueError(f"wall must be 'two_node' or 'lumped', got {self.wall!r}")
         if not (0 < self.wall_R_sheet_K_per_W < 1e4):
@@ -230,8 +231,8 @@ class AssimilationConfig:
     @staticmethod
     def paper(**changes) -> "AssimilationConfig":
         """The paper's setup: fixed windows, dopri5 with the adjoint, one lumped wall, the agent
-        from constant coefficients, carried from window to window unchecked; ``changes`` override fields (e.g. ``window_s``, ``iters``).
-        The studies that reproduce the paper's figures on its own cases use it."""
+        from constant coefficients, carried from window to window unchecked; ``changes`` override
+        fields (e.g. ``window_s``, ``iters``). The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
                                           agent_base="constant", carry_over="integrable"), **changes)
 
@@ -628,48 +629,34 @@ class Assimilator:
             return None if self.parallel.any(failed) else self.parallel.mean(local)
 
         moved = any(bool((w != w0).any()) for w, w0 in zip(trained, self.w0))
+        validated = self.config.carry_over == "validated"
         J = {1.0: cost_at(1.0)}
-        if not moved:
-            if J[1.0] is None:
-                raise first_err or SimulationError("the initial agent cannot integrate this window on another rank",
-                                                   t_start)
+        if moved and validated:
+            J[0.0] = cost_at(0.0)
+        if J[1.0] is not None and (J.get(0.0) is None or J[1.0] <= J[0.0]):
+            apply(1.0)
             return J[1.0], ""
-        if self.config.carry_over == "integrable":  # the largest share that integrates
-            for share in (1.0, *self._BACKTRACK, 0.0):
-                J[share] = J[share] if share in J else cost_at(share)
-                if J[share] is not None:
-                    break
-            ok = {share: J[share]} if J[share] is not None else {}
-        else:
-            ok = self._validated(J, cost_at)
+        ok = {}
+        if moved:  # else every share is the same agent
+            for share in (*self._BACKTRACK, 0.0):
+                if share not in J:
+                    J[share] = cost_at(share)
+                if J[share] is not None and not validated:
+                    break  # "integrable": the largest share that integrates
+            ok = {a: j for a, j in J.items() if j is not None}
         if not ok:
             if first_err is not None:
                 raise first_err
-            raise SimulationError("even the initial agent cannot integrate this window on another rank", t_start)
-        (share, J_share), = ok.items()
+            raise SimulationError("neither the agent nor the initial agent can integrate this window on another rank", t_start)
+        # "validated": the lowest J, on a tie the most of the learning; "integrable": the only one
+        share = min(ok, key=lambda a: (ok[a], -a))
         apply(share)
-        if share == 1.0:
-            return J_share, ""
         if J[1.0] is None:
             why = str(first_err).splitlines()[0] if first_err is not None else "on another rank"
             why = f"could not integrate this window ({why})"
         else:
             why = f"predicted this window at J {J[1.0]:.4g}, the initial agent at {J[0.0]:.4g}"
-        return J_share, f"the agent carried over {why}; it keeps {share:g} of its change from the initial agent"
-
-    def _validated(self, J: dict, cost_at) -> dict:
-        """``carry_over="validated"``: ``{share: J}`` of the candidate to start from (empty if none
-        integrates), given ``J[1.0]`` and the window's ``cost_at(share)`` (``_cost_before``)."""
-        J[0.0] = cost_at(0.0)
-        if J[1.0] is not None and (J[0.0] is None or J[1.0] <= J[0.0]):
-            return {1.0: J[1.0]}
-        for share in self._BACKTRACK:
-            J[share] = cost_at(share)
-        ok = {a: j for a, j in J.items() if j is not None}
-        if not ok:
-            return {}
-        share = min(ok, key=lambda a: (ok[a], -a))  # the lowest J; on a tie, the most of the learning
-        return {share: ok[share]}
+        return ok[share], f"the agent carried over {why}; it keeps {share:g} of its change from the initial agent"
 
     # -- the loop ------------------------------------------------------------------------------
 
