@@ -31,7 +31,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from common import MHTB_CHANNELS as CHANNELS, MHTB_RUNS as RUNS, ebm_predictions, mhtb_runs, score_on_ebm_samples  # noqa: E402
-from tankode.closures import MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
+from tankode.closures import ReferenceClosure  # noqa: E402
 from tankode.compare import channel_rmse, solution_observations  # noqa: E402
 from tankode.mechanisms import make_mechanism  # noqa: E402
 from tankode.saved import save_model  # noqa: E402
@@ -116,7 +116,7 @@ def main(argv=None) -> dict:
             # fresh mechanisms for every training: trained parameters change in place
             mechanisms = tuple(make_mechanism(name, **values) for name, values in spec.items())
             a = Assimilator([runs[n] for n in names], dataclasses.replace(config, train_mechanisms=trained, mode=mode),
-                            closure=MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base)), mechanisms=mechanisms)
+                            closure=config.agent(), mechanisms=mechanisms)
             start = time.perf_counter()
             result = a.run()  # one thread, as Assimilator.run always runs
             wall_s = time.perf_counter() - start

@@ -10,7 +10,7 @@ one batched ODE needs (``SHAPE``); seeds of other shapes are skipped.
 * A test set of ``N_TEST`` environments is set aside; the other ``N_POOL`` form the training pool.
 * Each draw ``d`` orders the pool at random (seed ``d``); the agent for ``N`` environments is
   trained on the first ``N`` of that order (so within a draw the sets are nested), from the same
-  untrained agent (``MLPConfig(seed=d)``), with fixed 10-minute windows, 20 bounded L-BFGS
+  untrained agent (``CONFIG.agent(d)``), with fixed 10-minute windows, 20 bounded L-BFGS
   iterations, the Rosenbrock integrator and back-propagation (``CONFIG``).
 * Every agent is scored on the same unseen test environments: J (``trainers/cost.py``: 0.5 per
   measured channel at the noise floor, 2.5 for the five) of its prediction of each whole test
@@ -40,7 +40,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tankode.closures import MLPClosure, MLPConfig, ReferenceClosure  # noqa: E402
+from tankode.closures import ReferenceClosure  # noqa: E402
 from tankode.errors import SimulationError  # noqa: E402
 from tankode.run_io import read_run  # noqa: E402
 from tankode.solver import Backprop  # noqa: E402
@@ -164,14 +164,14 @@ def main(argv=None) -> dict:
     results = []
     for d in range(draws):
         order = np.random.default_rng(d).permutation(len(pool))
-        init = MLPClosure(MLPConfig(seed=d, base=config.agent_base))
+        init = config.agent(d)
         untrained = score(init, test)
         results.append({"draw": d, "n": 0, "trained_on": [], "score": untrained, "train_s": 0.0})
         print(f"draw {d}, untrained agent: held-out J mean {untrained['mean']:.4g}, median {untrained['median']:.4g}",
               flush=True)
         for n in n_train:
             chosen = [pool[i] for i in order[:n]]
-            closure = MLPClosure(MLPConfig(seed=d, base=config.agent_base))
+            closure = config.agent(d)
             t = time.perf_counter()
             res = Assimilator(chosen, config, closure=closure).run()
             train_s = time.perf_counter() - t

@@ -1,6 +1,7 @@
 """Assimilation: the cost's weighting, windows, saved models, and exact resume after SIGKILL."""
 
 import dataclasses
+import json
 import math
 import os
 import signal
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from tankode.closures import MLPConfig
 from tankode.run import InitialState, Observations, Run, TankSpec
 from tankode.run_io import read_run, write_run
 from tankode.schedule import Schedule
@@ -21,6 +23,7 @@ from tankode.solver import Backprop, NoGradient
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator, window_edges
 from trainers.cost import Window, cost, cost_terms
+from trainers.evaluate import closure_inputs_along
 
 from mhtb_data import MHTB, needs_mhtb
 
@@ -106,6 +109,14 @@ def test_config_round_trip_and_validation():
         AssimilationConfig.paper(mode="sliding")
     with pytest.raises(ValueError, match="batch_fraction"):
         AssimilationConfig.paper(batch_fraction=0.0)
+    with pytest.raises(ValueError, match="agent_domain_margin"):
+        AssimilationConfig(agent_domain_margin=-1.0)
+    # The paper's agent extrapolates freely, and so did every agent configured before the fade.
+    assert cfg.agent_domain_margin is None and cfg.agent().config.domain_margin is None
+    old = json.loads(AssimilationConfig().to_json())
+    del old["agent_domain_margin"]
+    assert AssimilationConfig.from_json(json.dumps(old)).agent_domain_margin is None
+    assert AssimilationConfig().agent(seed=4).config == MLPConfig(seed=4, base="natural", domain_margin=0.1)
 
 
 def _cli(*args, **kw):
@@ -518,6 +529,14 @@ def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exac
     w_resumed = torch.cat([p.detach().flatten() for p in resumed.closure.parameters()])
     w_straight = torch.cat([p.detach().flatten() for p in a.closure.parameters()])
     assert torch.equal(w_resumed, w_straight)
+    # The agent's seen box (MLPClosure.extend_domain) holds the windows' trajectories: the last
+    # window's final trajectory lies inside it; it resumes with the weights.
+    box = a.closure.seen_lo, a.closure.seen_hi
+    assert torch.isfinite(torch.cat(box)).all() and (box[0] <= box[1]).all() and (box[0] < box[1]).any()
+    t_last, states_last = a.history[-1]
+    features = torch.stack([a.closure.features(x) for x in closure_inputs_along(a.model, a.fleet, t_last, states_last)], 1)
+    assert bool(((features >= box[0]) & (features <= box[1])).all())
+    assert torch.equal(resumed.closure.seen_lo, box[0]) and torch.equal(resumed.closure.seen_hi, box[1])
 
 
 def _window_inputs(a, k=0):
@@ -547,7 +566,8 @@ def test_an_agent_that_cannot_integrate_a_new_window_moves_back_towards_the_init
     from tankode.errors import SimulationError
 
     data = _data(_short_run(120.0))
-    a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1))
+    # No seen box: the J of each share below must not change when the update widens it.
+    a = Assimilator([data], AssimilationConfig(window_s=60.0, iters=1, agent_domain_margin=None))
     params = list(a.closure.parameters())
     delta = [torch.full_like(p, 0.1) for p in params]
     real_predict = a.predict

@@ -237,3 +237,59 @@ def test_supervised_fit_recovers_coefficients_an_mlp_can_represent():
     assert log_error(student, features, theta).max() < 0.05
     with pytest.raises(ValueError, match="columns"):
         fit_supervised(student, features[:, :7], theta, weight_decay=0.0, max_iter=1)
+
+
+def _trained(config: MLPConfig) -> MLPClosure:
+    mlp = MLPClosure(config)
+    with torch.no_grad():
+        for p in mlp.parameters():
+            p.copy_(0.3 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel()), dtype=torch.float64))
+    return mlp
+
+
+def test_the_learned_correction_fades_to_the_base_outside_the_seen_box_and_only_there():
+    margin = 0.1
+    gated, free = _trained(MLPConfig(domain_margin=margin)), _trained(MLPConfig())
+    seen = _inputs(T_v=28.0, T_w=26.0, T_l=20.0, n=1)
+    f_seen = gated.features(seen)
+    assert torch.equal(gated(seen), free(seen))  # nothing seen yet: no gate
+    gated.extend_domain(torch.cat([f_seen - 0.05, f_seen + 0.05]))
+    assert torch.equal(gated(seen), free(seen))  # inside the box the agent is unchanged
+    # A point outside the box by d in one feature: the correction is scaled by exp(-(d/margin)^2).
+    f_out = f_seen.clone()
+    f_out[0, 3] = f_seen[0, 3] + 0.05 + 0.12  # Re_1e4: a sloshing the agent has not seen
+    log_base = torch.zeros(1, 4, dtype=torch.float64)
+    expected = math.exp(-(0.12 / margin) ** 2) * free.log_theta(f_out, log_base)
+    assert torch.allclose(gated.log_theta(f_out, log_base), expected, rtol=1e-12, atol=0)
+    # Far outside, the agent is its base.
+    f_far = f_out.clone()
+    f_far[0, 3] += 1.0
+    assert gated.log_theta(f_far, log_base).abs().max() < 1e-30
+    # The box only widens; non-finite points are skipped.
+    gated.extend_domain(torch.tensor([[math.nan] * f_seen.shape[1]], dtype=torch.float64))
+    gated.extend_domain(f_seen)
+    assert torch.allclose(gated.seen_hi - gated.seen_lo, torch.full_like(gated.seen_lo, 0.1), rtol=1e-12)
+
+
+def test_the_fade_is_smooth_across_the_box_edge_gradcheck():
+    gated = _trained(MLPConfig(domain_margin=0.1))
+    f = gated.features(_inputs(n=1))
+    gated.extend_domain(torch.cat([f - 0.02, f + 0.02]))
+    # Points inside, on the edge's two sides and outside, in every feature.
+    points = (f + torch.linspace(-0.08, 0.08, 5, dtype=torch.float64)[:, None]).requires_grad_(True)
+    torch.autograd.gradcheck(lambda z: gated.log_theta(z, torch.zeros(5, 4, dtype=torch.float64)), (points,))
+
+
+def test_the_seen_box_is_saved_with_the_agent(tmp_path):
+    from tankode.saved import load_model, save_model
+
+    gated = _trained(MLPConfig(domain_margin=0.1))
+    f = gated.features(_inputs(n=1))
+    gated.extend_domain(torch.cat([f - 0.01, f + 0.01]))
+    loaded = load_model(save_model(tmp_path / "m", gated, "ParaHydrogen")).closure
+    assert loaded.config.domain_margin == 0.1
+    assert torch.equal(loaded.seen_lo, gated.seen_lo) and torch.equal(loaded.seen_hi, gated.seen_hi)
+    far = _inputs(T_v=40.0, T_w=21.0, A0=0.02, f=0.7, n=1)
+    assert torch.equal(loaded(far), gated(far)) and not torch.allclose(loaded(far), _trained(MLPConfig())(far))
+    with pytest.raises(ValueError, match="domain_margin"):
+        MLPConfig(domain_margin=0.0)

@@ -218,8 +218,10 @@ def test_torchrun_window_update_equals_the_single_process_update_of_its_shards(r
     # design aims at and far below any physical meaning.
     assert _rel(_weights(out / "weights.pt"), _closure_weights(reference.closure)) <= 1e-9
     # Three iterations end away from a stationary point, so J moves with the weights' last digits:
-    # the ranks sum their shards' means (weighted n_r / N), one process the fleet's (measured 4e-10).
-    assert meta["info"]["final_cost"] == pytest.approx(report.cost_after, rel=1e-8)
+    # the ranks sum their shards' means (weighted n_r / N), one process the fleet's (measured 4e-10
+    # without the agent's seen box, 1.8e-8 with it: the box's edges, and so the trajectory J is
+    # taken on after it widens, move with those digits too).
+    assert meta["info"]["final_cost"] == pytest.approx(report.cost_after, rel=1e-7)
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "model.json", "weights.pt"]
 
 

@@ -52,7 +52,10 @@ def data():
 def test_gradient_in_a_mechanism_parameter_matches_central_differences(data, gradient):
     """d J / d (value / scale) through the trained mechanisms, by every gradient strategy, against
     central differences (the adjoint differentiates only the model's registered parameters)."""
-    a = _assimilator(data)
+    # Tight tolerances: the wall (23.5 K) heats the liquid past saturation into the flash's onset
+    # (tankode.bulk, 0.02 K wide), and at the training tolerances the step selection makes the
+    # central difference itself noisy at 1e-4.
+    a = _assimilator(data, rtol=1e-10, atol=1e-12)
     (_, xi_leak), (_, xi_wall) = a.trained.named()
     with torch.no_grad():
         xi_leak.fill_(2.0)  # 200 W, eps 0.2: away from the truth and from 0, where the steps are relative
@@ -66,7 +69,7 @@ def test_gradient_in_a_mechanism_parameter_matches_central_differences(data, gra
     J().backward()
     for xi in (xi_leak, xi_wall):
         fd = central_difference(J, xi)
-        assert torch.allclose(xi.grad, fd, rtol=1e-4), (xi.grad, fd)
+        assert torch.allclose(xi.grad, fd, rtol=1e-5), (xi.grad, fd)
 
 
 def test_hidden_heat_leak_and_wall_capacity_are_recovered_and_saved(data, tmp_path):

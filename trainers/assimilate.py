@@ -144,6 +144,13 @@ class AssimilationConfig:
         agent_base: the base closure of a fresh agent (``MLPConfig.base``): ``"natural"``
             (textbook convection on each surface, which the agent corrects), ``"reference"`` or
             ``"constant"`` (the paper's agent, from fixed mid-range coefficients).
+        agent_domain_margin: a fresh agent's ``MLPConfig.domain_margin`` (feature units): its
+            learned correction fades to the base outside the inputs it was trained on, so that a
+            forecast into an operation the stream has not shown (a fill after a hold, sloshing
+            after a vent) uses the physical base, not the network's extrapolation. The box grows
+            with each window's trajectory, before its update (so the update may learn there)
+            and after it. 0.1 is a factor of about 20 in a Grashof number
+            (``ln(Gr + 1) / 30``) or a tenth of the fill. None: no fade (the paper's agent).
         train_mechanisms: ids of the model's mechanisms whose parameters each window's update
             trains with the weights, inside their physical bounds (``trainers/mechanism_params.py``):
             e.g. ``("dry_wall_node",)`` learns the shell's sheet resistance from the stream. Empty
@@ -176,6 +183,7 @@ class AssimilationConfig:
     wall_R_sheet_K_per_W: float = 10.0
     carry_over: str = "validated"
     agent_base: str = "natural"
+    agent_domain_margin: float | None = 0.1
 
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -186,6 +194,10 @@ class AssimilationConfig:
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
         if self.agent_base not in BASES:
             raise ValueError(f"agent_base must be one of {BASES}, got {self.agent_base!r}")
+        if self.agent_domain_margin is not None and not (math.isfinite(self.agent_domain_margin)
+                                                         and self.agent_domain_margin > 0):
+            raise ValueError(f"agent_domain_margin must be None or finite and > 0 (feature units), "
+                             f"got {self.agent_domain_margin}")
         if self.carry_over not in CARRY_OVERS:
             raise ValueError(f"carry_over must be one of {CARRY_OVERS}, got {self.carry_over!r}")
         if self.wall not in ("two_node", "lumped"):
@@ -224,6 +236,12 @@ class AssimilationConfig:
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
+    def agent(self, seed: int | None = None) -> MLPClosure:
+        """A fresh agent of this configuration (its base and domain margin), seeded ``seed``
+        (default: ``self.seed``)."""
+        return MLPClosure(MLPConfig(seed=self.seed if seed is None else seed, base=self.agent_base,
+                                    domain_margin=self.agent_domain_margin))
+
     def solver(self):
         """The ODE solver of the training's forward pass (``integrator`` at ``rtol``/``atol``)."""
         return _INTEGRATORS[self.integrator](rtol=self.rtol, atol=self.atol, max_rhs_evals=self.max_rhs_evals)
@@ -234,7 +252,8 @@ class AssimilationConfig:
         from constant coefficients, carried from window to window unchecked; ``changes`` override
         fields (e.g. ``window_s``, ``iters``). The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
-                                          agent_base="constant", carry_over="integrable"), **changes)
+                                          agent_base="constant", carry_over="integrable", agent_domain_margin=None),
+                       **changes)
 
     def to_json(self) -> str:
         d = asdict(self)
@@ -256,6 +275,7 @@ class AssimilationConfig:
         d.setdefault("agent_base", "constant")  # the only agent before the residual one existed
         d.setdefault("wall_R_sheet_K_per_W", 10.0)
         d.setdefault("carry_over", "integrable")  # before the check existed
+        d.setdefault("agent_domain_margin", None)  # agents extrapolated freely before the fade existed
         d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
@@ -371,7 +391,7 @@ class Assimilator:
                  mechanisms=(), parallel=None):
         self.fleet = Fleet.from_runs(runs, surrogate)
         self.config = config
-        self.closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base))
+        self.closure = closure if closure is not None else config.agent()
         mechanisms, trained = tuple(mechanisms), config.train_mechanisms
         ids = {m.id for m in mechanisms}
         if config.wall == "two_node":
@@ -525,6 +545,9 @@ class Assimilator:
             in_backward = True
             return J
 
+        # The agent may learn where this window goes: its seen box (MLPClosure.extend_domain)
+        # takes the window's trajectory under the agent as it stands.
+        self._extend_seen_along(s_start, t_start, t_eval)
         # Before the optimiser is built: it may move the weights back (an agent that cannot
         # integrate this window), and BoundedLBFGS holds the weights it starts from.
         before, note = self._cost_before(s_start, t_start, t_eval, obs_index, window)
@@ -563,6 +586,9 @@ class Assimilator:
             offsets = estimate.offset.detach().tolist()
         with torch.no_grad():
             states = self.predict(s_start, t_start, t_eval, NoGradient())
+            if self._gated():  # the box takes the trained trajectory; the window then ends on the agent as kept
+                self._extend_seen(closure_inputs_along(self.model, self.fleet, t_eval, states))
+                states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])
             terms = self.parallel.rows(cost_terms(pred, window))  # (N, 5): the whole fleet's
             after = float(terms.sum() / terms.shape[0])
@@ -583,6 +609,38 @@ class Assimilator:
                               n_evals, n_iters, time.perf_counter() - start, note, offsets, saturated,
                               self.trained.values())
         return report, states[:, -1].detach().clone(), opt.state_dict()
+
+    def _gated(self) -> bool:
+        return isinstance(self.closure, MLPClosure) and self.closure.config.domain_margin is not None
+
+    def _extend_seen(self, inputs: list) -> None:
+        """Widen the agent's seen box with the closure inputs along a trajectory (one per output
+        time, each ``(env,)``), every rank's; nothing for an agent without a domain margin."""
+        if not self._gated():
+            return
+        with torch.no_grad():
+            f = torch.stack([self.closure.features(x) for x in inputs], dim=1)  # (env, T, F)
+            finite = torch.isfinite(f)
+            lo = torch.where(finite, f, math.inf).amin(1)
+            hi = torch.where(finite, f, -math.inf).amax(1)
+            both = self.parallel.rows(torch.cat([lo, hi], dim=-1))  # (N, 2F): the whole fleet's
+        n = f.shape[-1]
+        self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
+
+    def _extend_seen_along(self, s_start: Tensor, t_start: float, t_eval: Tensor) -> None:
+        """``_extend_seen`` along the window's trajectory under the agent as it stands. If that
+        agent cannot integrate the window (``_cost_before`` then shrinks it), the box grows
+        after the update only."""
+        if not self._gated():
+            return
+        failed = False
+        try:
+            with torch.no_grad():
+                states = self.predict(s_start, t_start, t_eval, NoGradient())
+        except SimulationError:
+            failed = True
+        if not self.parallel.any(failed):  # every rank widens the box alike, or none does
+            self._extend_seen(closure_inputs_along(self.model, self.fleet, t_eval, states))
 
     # Shares of its change since the initial agent that the carried-over agent may keep, tried
     # when it predicts the new window worse than the initial agent or cannot integrate it

@@ -549,7 +549,6 @@ def probe_costs(runs, config, closure=None, mechanisms=(), span_s: float = PROBE
     cannot be integrated gets the solver's whole budget (as costly as a tank can be). Runs not
     in ``batches`` get NaN.
     """
-    from tankode.closures import MLPClosure, MLPConfig
     from tankode.fleet import Fleet
     from tankode.integrate import integrate, state_scale
     from tankode.model import TankModel
@@ -558,7 +557,7 @@ def probe_costs(runs, config, closure=None, mechanisms=(), span_s: float = PROBE
     runs = list(runs)
     if not (span_s > 0 and math.isfinite(span_s)):
         raise ValueError(f"span_s must be a positive number of seconds, got {span_s}")
-    closure = closure if closure is not None else MLPClosure(MLPConfig(seed=config.seed, base=config.agent_base))
+    closure = closure if closure is not None else config.agent()
     if batches is None:
         batches = probe_batches(runs, max_probes, surrogate)
     solver = config.solver()

@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from tankode.cases import get_case
-from tankode.closures import Closure, MLPClosure, MLPConfig
+from tankode.closures import Closure, MLPClosure
 from tankode.errors import SimulationError
 from tankode.run import Run
 from tankode.simulation import Solution, simulate
@@ -378,7 +378,7 @@ def minibatch_study(case: SyntheticCase, config: AssimilationConfig, fractions: 
     for frac in fractions:
         for seed in (seeds[:1] if frac >= 1.0 else seeds):
             cfg = dataclasses.replace(config, batch_fraction=frac, seed=int(seed))
-            rec = assimilate_stream([train], cfg, closure=MLPClosure(MLPConfig(seed=agent_seed, base=cfg.agent_base)),
+            rec = assimilate_stream([train], cfg, closure=cfg.agent(agent_seed),
                                     label=f"{frac:.0%} seed {seed}")
             err = whole_run_error(rec.closure, case)
             err.pop("obs")

@@ -71,6 +71,23 @@ blows up. The base (``MLPConfig.base``):
 * ``"constant"``: the fixed mid-range coefficients ``h_ref_W_m2K`` (the paper's agent, which
   learns the coefficients' levels and shapes from nothing).
 
+Outside the seen inputs (``MLPConfig.domain_margin``, not the paper's). A network says nothing
+reliable about inputs it was never trained on, and a residual agent trained on a quiet hold
+applies its learned factors to a fill or a sloshing it has not seen (measured on other
+simulators' tanks: a forecast worse than the untrained agent's, ``experiments/README.md``,
+section 5). With a margin, the agent keeps the box of the features it was trained on
+(``seen_lo``, ``seen_hi``: buffers saved with the weights) and its learned correction fades
+to the base outside it::
+
+    ln h_j = ln base_j(s) + span * g(x) * tanh(o_j),   g(x) = exp(-sum_i (d_i / margin)^2),
+
+with ``d_i`` how far feature ``i`` lies outside ``[seen_lo_i, seen_hi_i]`` (0 inside, where
+``g = 1`` and nothing changes). An agent that has seen nothing is not gated; the assimilation
+widens the box with each window's trajectory before and after training on it
+(``extend_domain``). Limits: a box, not the seen inputs' joint distribution (a combination
+of values each seen apart counts as seen), and the base must be a physical closure for the
+fade to mean anything (the ``"constant"`` base fades to mid-range constants).
+
 Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 500 with the extended inputs.
 """
 
@@ -111,6 +128,9 @@ class MLPConfig:
         seed: weight initialisation seed.
         base: the closure the learned factor multiplies (module docstring): ``"natural"``,
             ``"reference"`` or ``"constant"`` (``h_ref_W_m2K``; the only use of that field).
+        domain_margin: distance in feature units over which the learned correction fades to
+            the base outside the inputs seen in training (module docstring, "Outside the seen
+            inputs"); None: no fade (the paper's agent, which extrapolates freely).
     """
 
     features: tuple[str, ...] = FEATURE_NAMES
@@ -119,6 +139,7 @@ class MLPConfig:
     span: float = math.log(100.0)
     seed: int = 0
     base: str = "natural"
+    domain_margin: float | None = None
 
     def __post_init__(self):
         unknown = [f for f in self.features if f not in _FEATURES]
@@ -133,6 +154,9 @@ class MLPConfig:
             raise ValueError(f"MLPConfig.span must be in (0, 10] (log units), got {self.span}")
         if self.base not in BASES:
             raise ValueError(f"MLPConfig.base must be one of {BASES}, got {self.base!r}")
+        if self.domain_margin is not None and not (math.isfinite(self.domain_margin) and self.domain_margin > 0):
+            raise ValueError(f"MLPConfig.domain_margin must be None or finite and > 0 (feature units), "
+                             f"got {self.domain_margin}")
 
 
 def _ln_gr(beta: Tensor, dT: Tensor, nu: Tensor, R: Tensor) -> Tensor:
@@ -214,6 +238,40 @@ class MLPClosure(Closure):
         self.net = nn.Sequential(*layers)
         self.register_buffer("log_h_ref", torch.log(torch.tensor(config.h_ref_W_m2K, dtype=torch.float64)))
         self.base = _base_closure(config.base)
+        if config.domain_margin is not None:  # an empty box (lo > hi): nothing seen yet, no gate
+            n = len(config.features)
+            self.register_buffer("seen_lo", torch.full((n,), math.inf, dtype=torch.float64))
+            self.register_buffer("seen_hi", torch.full((n,), -math.inf, dtype=torch.float64))
+
+    def features(self, x: ClosureInputs) -> Tensor:
+        """The agent's scaled input features ``(env, n_features)`` at ``x`` (module docstring)."""
+        return mlp_features(x, self.config.features)
+
+    def extend_domain(self, points: Tensor) -> None:
+        """Widen the seen box to hold ``points`` ``(..., n_features)`` (feature units); non-finite
+        points are skipped. Does nothing without a ``domain_margin``."""
+        if self.config.domain_margin is None:
+            return
+        f = points.detach().to(torch.float64).reshape(-1, len(self.config.features))
+        f = f[torch.isfinite(f).all(-1)]
+        if len(f):
+            with torch.no_grad():
+                self.seen_lo.copy_(torch.minimum(self.seen_lo, f.amin(0)))
+                self.seen_hi.copy_(torch.maximum(self.seen_hi, f.amax(0)))
+
+    def gate(self, features: Tensor) -> Tensor | None:
+        """``g(x)`` ``(..., 1)`` of the module docstring at scaled ``features``, or None (no gate:
+        no margin, or nothing seen yet)."""
+        if self.config.domain_margin is None or not bool((self.seen_lo <= self.seen_hi).all()):
+            return None
+        outside = torch.relu(self.seen_lo - features) + torch.relu(features - self.seen_hi)
+        return torch.exp(-((outside / self.config.domain_margin) ** 2).sum(-1, keepdim=True))
+
+    def _correction(self, features: Tensor) -> Tensor:
+        """``g(x) tanh(o)`` ``(..., 4)``: the learned correction in units of ``span``."""
+        c = torch.tanh(self.net(features))
+        g = self.gate(features)
+        return c if g is None else g * c
 
     def log_base(self, x: ClosureInputs) -> Tensor:
         """``ln`` of the base coefficients ``(env, 4)`` at ``x`` (the untrained agent's closure)."""
@@ -228,15 +286,15 @@ class MLPClosure(Closure):
             if self.base is not None:
                 raise ValueError(f"an agent on the {self.config.base!r} base needs log_base (its ln h at the states)")
             log_base = self.log_h_ref
-        return log_base + self.config.span * torch.tanh(self.net(features))
+        return log_base + self.config.span * self._correction(features)
 
     def forward(self, x: ClosureInputs) -> Tensor:
-        return torch.exp(self.log_theta(mlp_features(x, self.config.features), self.log_base(x)))
+        return torch.exp(self.log_theta(self.features(x), self.log_base(x)))
 
     def output_position(self, x: ClosureInputs) -> Tensor:
-        """``tanh(o)`` ``(env, 4)`` at ``x``: -1 and +1 are the output bounds ``base e^-span`` and
+        """``g(x) tanh(o)`` ``(env, 4)`` at ``x``: -1 and +1 are the output bounds ``base e^-span`` and
         ``base e^span``, where the slope vanishes."""
-        return torch.tanh(self.net(mlp_features(x, self.config.features)))
+        return self._correction(self.features(x))
 
 
 __all__ = ["MLPClosure", "MLPConfig", "BASES", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]
