@@ -54,8 +54,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--window-start", choices=("model", "data", "joint"), default="model", help="AssimilationConfig.window_start")
     ap.add_argument("--start-prior-sigmas", type=float, default=1.0, help="AssimilationConfig.start_prior_sigmas (window_start joint)")
     ap.add_argument("--seed", type=int, default=SEED, help="noise draw and weight initialisation seed")
-    ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="default",
-                    help="the agent's input features (tankode/closures/mlp.py): default (eight) or extended (nine)")
+    ap.add_argument("--inputs", choices=tuple(INPUT_SETS), default="paper",
+                    help="the agent's input features (tankode/closures/mlp.py): paper (eight), operations (twelve) or extended (nine)")
     ap.add_argument("--memory", choices=tuple(MEMORIES), default="forget",
                     help="AssimilationConfig.memory: Forget() (paper) or LaplaceMemory() (trainers/memory.py)")
     ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")

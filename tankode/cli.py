@@ -13,8 +13,14 @@ from .files import check_output_dir
 # Choices spelled out so that argument parsing imports neither torch nor CoolProp (a test
 # checks each against the library's own table).
 _GRADIENTS = ("adjoint", "backprop", "checkpointed")  # tankode assimilate --gradient
-_INPUT_SETS = ("default", "extended")  # tankode.closures.INPUT_SETS
+_INPUT_SETS = ("operations", "paper", "extended")  # tankode.closures.INPUT_SETS, the default first
 _EXIT_ERROR = 2  # every error: a bad input, a failed simulation, a refused output
+
+
+def _input_set(name: str) -> tuple[str, ...]:
+    from .closures import INPUT_SETS
+
+    return INPUT_SETS[name]
 
 
 def _gradient(name: str):
@@ -151,16 +157,14 @@ def cmd_assimilate(args) -> int:
                                 replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
                                 replay_s=args.replay_s or AssimilationConfig.replay_s,
                                 wall=args.wall or AssimilationConfig.wall,
-                                carry_over=args.carry_over or AssimilationConfig.carry_over)
+                                carry_over=args.carry_over or AssimilationConfig.carry_over,
+                                agent_features=(_input_set(args.inputs) if args.inputs is not None
+                                                else AssimilationConfig.agent_features))
     if writes:
         out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
     if args.inputs is not None and args.init is not None:
         raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
-    if args.inputs is not None:
-        from .closures import INPUT_SETS, MLPClosure, MLPConfig
-
-        closure = MLPClosure(MLPConfig(features=INPUT_SETS[args.inputs], seed=args.seed, base=config.agent_base))
     if args.init is not None:
         closure, mechanisms, _ = load_model(args.init)
         if not any(p.requires_grad for p in closure.parameters()):
@@ -370,8 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train these mechanisms' parameters with the agent, inside their physical bounds, starting "
                         "from their given values (trainers/mechanism_params.py)")
     a.add_argument("--inputs", choices=_INPUT_SETS, default=None,
-                   help="input features of a fresh agent (tankode/closures/mlp.py): default = the paper's eight, "
-                        "extended = nine (not with --init, whose closure fixes them)")
+                   help="input features of a fresh agent (tankode/closures/mlp.py): operations (the default) = the "
+                        "paper's eight and the four operations' turnovers, paper = its eight, extended = nine "
+                        "(not with --init, whose closure fixes them)")
     a.add_argument("--logdir", default=None, help="TensorBoard log directory")
     a.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt after an interruption")
     a.add_argument("--collective-timeout", type=float, default=None, metavar="SECONDS",

@@ -16,7 +16,8 @@ from tankode.closures.reference import XI_11, first_slosh_frequency_Hz, wave_hei
 R = 0.9
 
 
-def _inputs(T_v=30.0, T_l=20.0, T_w=25.0, A0=0.0, f=0.0, H_l=1.4, n=1):
+def _inputs(T_v=30.0, T_l=20.0, T_w=25.0, A0=0.0, f=0.0, H_l=1.4, n=1, m_v=5.0, m_l=300.0, mdot_v_in=0.0,
+            mdot_v_out=0.0, mdot_l_in=0.0, mdot_l_out=0.0):
     fluid = AnalyticFluid()
     c = fluid.params
     u_v = torch.full((n,), c.L_J_per_kg + c.cv_v_J_per_kgK * (T_v - c.T0_K), dtype=torch.float64)
@@ -26,7 +27,8 @@ def _inputs(T_v=30.0, T_l=20.0, T_w=25.0, A0=0.0, f=0.0, H_l=1.4, n=1):
     pv, pl = fluid.vapor(u_v, rho_v), fluid.liquid(u_l, rho_l)
     full = lambda v: torch.full((n,), float(v), dtype=torch.float64)  # noqa: E731
     return ClosureInputs(pv.T, pl.T, full(T_w), pv.T_sat, rho_v, rho_l, pv, pl, full(H_l), full(R), full(R / 2.2),
-                         full(A0), full(f))
+                         full(A0), full(f), full(m_v), full(m_l), full(mdot_v_in), full(mdot_v_out), full(mdot_l_in),
+                         full(mdot_l_out))
 
 
 def test_reference_at_rest_and_stably_stratified_is_the_conduction_floor():
@@ -265,10 +267,42 @@ def test_the_learned_correction_fades_to_the_base_outside_the_seen_box_and_only_
     f_far = f_out.clone()
     f_far[0, 3] += 1.0
     assert gated.log_theta(f_far, log_base).abs().max() < 1e-30
-    # The box only widens; non-finite points are skipped.
+    # The box only widens; a non-finite value is skipped, its point's other features still count.
     gated.extend_domain(torch.tensor([[math.nan] * f_seen.shape[1]], dtype=torch.float64))
     gated.extend_domain(f_seen)
     assert torch.allclose(gated.seen_hi - gated.seen_lo, torch.full_like(gated.seen_lo, 0.1), rtol=1e-12)
+    partial = f_seen + 0.2
+    partial[0, 0] = math.inf
+    gated.extend_domain(partial)
+    assert float(gated.seen_hi[1]) == pytest.approx(float(f_seen[0, 1]) + 0.2, abs=1e-15)
+    assert float(gated.seen_hi[0]) == pytest.approx(float(f_seen[0, 0]) + 0.05, abs=1e-15)
+
+
+def test_operation_turnovers_are_zero_at_rest_and_an_unseen_fill_returns_the_base():
+    from tankode.closures import OPERATION_FEATURES
+    from tankode.closures.mlp import OPERATION_TIME_S
+
+    names = ("lnTurn_v_in", "lnTurn_v_out", "lnTurn_l_in", "lnTurn_l_out")
+    assert OPERATION_FEATURES[-4:] == names and OPERATION_FEATURES[:8] == FEATURE_NAMES
+    rest = mlp_features(_inputs(), names)
+    assert torch.equal(rest, torch.zeros(1, 4, dtype=torch.float64))
+    flows = dict(mdot_v_in=0.004, mdot_v_out=0.002, mdot_l_in=0.12, mdot_l_out=0.15)
+    got = mlp_features(_inputs(m_v=5.0, m_l=300.0, **flows), names)[0]
+    want = [math.log1p(0.004 * OPERATION_TIME_S / 5.0), math.log1p(0.002 * OPERATION_TIME_S / 5.0),
+            math.log1p(0.12 * OPERATION_TIME_S / 300.0), math.log1p(0.15 * OPERATION_TIME_S / 300.0)]
+    assert got.tolist() == pytest.approx(want, rel=1e-14)
+    # 1 % of the liquid per hour reads about one domain margin (0.1), as documented.
+    trickle = mlp_features(_inputs(m_l=300.0, mdot_l_in=0.01 * 300.0 / 3600), ("lnTurn_l_in",))
+    assert float(trickle) == pytest.approx(math.log(1.1), rel=1e-12)
+    # An agent that has seen a drain but no fill is its base closure during a fill of the same
+    # rate, and keeps its learning during the drain.
+    gated = _trained(MLPConfig(features=OPERATION_FEATURES, domain_margin=0.1, base="natural"))
+    drain = _inputs(m_l=300.0, mdot_l_out=0.15)
+    fill = _inputs(m_l=300.0, mdot_l_in=0.15)
+    gated.extend_domain(gated.features(drain))
+    base = gated.base(fill)
+    assert torch.allclose(gated(fill), base, rtol=1e-12)
+    assert not torch.allclose(gated(drain), gated.base(drain), rtol=1e-3)
 
 
 def test_the_fade_is_smooth_across_the_box_edge_gradcheck():

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tankode.closures import BASES, THETA_NAMES, MLPClosure, MLPConfig
+from tankode.closures import FEATURE_NAMES, OPERATION_FEATURES, THETA_NAMES, MLPClosure, MLPConfig
 from tankode.errors import SimulationError
 from tankode.fleet import Fleet
 from tankode.integrate import integrate, state_scale
@@ -150,7 +150,12 @@ class AssimilationConfig:
             after a vent) uses the physical base, not the network's extrapolation. The box grows
             with each window's trajectory, before its update (so the update may learn there)
             and after it. 0.1 is a factor of about 20 in a Grashof number
-            (``ln(Gr + 1) / 30``) or a tenth of the fill. None: no fade (the paper's agent).
+            (``ln(Gr + 1) / 30``), a tenth of the fill, or a flow moving 1 % of its phase per
+            hour. None: no fade (the paper's agent).
+        agent_features: a fresh agent's input features (``MLPConfig.features``). The default,
+            ``OPERATION_FEATURES``, adds the four operations' turnovers to the paper's eight, so
+            that a fill, a drain, a vent or an injection the stream has not shown lies outside
+            the seen box; the paper's setup uses its eight (``FEATURE_NAMES``).
         train_mechanisms: ids of the model's mechanisms whose parameters each window's update
             trains with the weights, inside their physical bounds (``trainers/mechanism_params.py``):
             e.g. ``("dry_wall_node",)`` learns the shell's sheet resistance from the stream. Empty
@@ -184,6 +189,7 @@ class AssimilationConfig:
     carry_over: str = "validated"
     agent_base: str = "natural"
     agent_domain_margin: float | None = 0.1
+    agent_features: tuple[str, ...] = OPERATION_FEATURES
 
     def __post_init__(self):
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
@@ -192,12 +198,8 @@ class AssimilationConfig:
             raise ValueError(f"window_start must be 'model', 'data' or 'joint', got {self.window_start!r}")
         if not (self.start_prior_sigmas > 0 and math.isfinite(self.start_prior_sigmas)):
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
-        if self.agent_base not in BASES:
-            raise ValueError(f"agent_base must be one of {BASES}, got {self.agent_base!r}")
-        if self.agent_domain_margin is not None and not (math.isfinite(self.agent_domain_margin)
-                                                         and self.agent_domain_margin > 0):
-            raise ValueError(f"agent_domain_margin must be None or finite and > 0 (feature units), "
-                             f"got {self.agent_domain_margin}")
+        object.__setattr__(self, "agent_features", tuple(self.agent_features))  # lists from JSON or a CLI
+        self._agent_config(seed=self.seed)  # the agent's settings, validated where they are defined
         if self.carry_over not in CARRY_OVERS:
             raise ValueError(f"carry_over must be one of {CARRY_OVERS}, got {self.carry_over!r}")
         if self.wall not in ("two_node", "lumped"):
@@ -236,11 +238,17 @@ class AssimilationConfig:
         if isinstance(self.memory, LaplaceMemory) and self.mode != "fixed":
             raise ValueError("memory=LaplaceMemory() needs mode='fixed' (growing windows already refit all the data)")
 
+    def _agent_config(self, seed: int) -> MLPConfig:
+        try:
+            return MLPConfig(features=self.agent_features, seed=seed, base=self.agent_base,
+                             domain_margin=self.agent_domain_margin)
+        except ValueError as e:
+            raise ValueError(f"the agent's settings (agent_features, agent_base, agent_domain_margin): {e}") from None
+
     def agent(self, seed: int | None = None) -> MLPClosure:
-        """A fresh agent of this configuration (its base and domain margin), seeded ``seed``
-        (default: ``self.seed``)."""
-        return MLPClosure(MLPConfig(seed=self.seed if seed is None else seed, base=self.agent_base,
-                                    domain_margin=self.agent_domain_margin))
+        """A fresh agent of this configuration (its features, base and domain margin), seeded
+        ``seed`` (default: ``self.seed``)."""
+        return MLPClosure(self._agent_config(self.seed if seed is None else seed))
 
     def solver(self):
         """The ODE solver of the training's forward pass (``integrator`` at ``rtol``/``atol``)."""
@@ -252,7 +260,8 @@ class AssimilationConfig:
         from constant coefficients, carried from window to window unchecked; ``changes`` override
         fields (e.g. ``window_s``, ``iters``). The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
-                                          agent_base="constant", carry_over="integrable", agent_domain_margin=None),
+                                          agent_base="constant", carry_over="integrable", agent_domain_margin=None,
+                                          agent_features=FEATURE_NAMES),
                        **changes)
 
     def to_json(self) -> str:
@@ -276,6 +285,7 @@ class AssimilationConfig:
         d.setdefault("wall_R_sheet_K_per_W", 10.0)
         d.setdefault("carry_over", "integrable")  # before the check existed
         d.setdefault("agent_domain_margin", None)  # agents extrapolated freely before the fade existed
+        d.setdefault("agent_features", FEATURE_NAMES)  # the paper's eight before the operations existed
         d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
             if d[key] not in known:
@@ -546,7 +556,11 @@ class Assimilator:
             return J
 
         # The agent may learn where this window goes: its seen box (MLPClosure.extend_domain)
-        # takes the window's trajectory under the agent as it stands.
+        # takes the window's trajectory under the agent as it stands. Before the check below,
+        # which must judge the agent with that box: a new operation (a warm-gas injection after
+        # a hold) lies outside the old box, where the agent is its base and predicts well, and
+        # inside the new one, where the network extrapolates (measured: J 1,700 judged in the old
+        # box, 3,100 after the update that started in the new one, on another simulator's tank).
         self._extend_seen_along(s_start, t_start, t_eval)
         # Before the optimiser is built: it may move the weights back (an agent that cannot
         # integrate this window), and BoundedLBFGS holds the weights it starts from.
@@ -586,8 +600,9 @@ class Assimilator:
             offsets = estimate.offset.detach().tolist()
         with torch.no_grad():
             states = self.predict(s_start, t_start, t_eval, NoGradient())
-            if self._gated():  # the box takes the trained trajectory; the window then ends on the agent as kept
-                self._extend_seen(closure_inputs_along(self.model, self.fleet, t_eval, states))
+            # The box takes the trained trajectory; if that widened it, the agent changed where the
+            # trajectory left the old box, and the window must end on the agent as kept.
+            if self._extend_seen(t_eval, states):
                 states = self.predict(s_start, t_start, t_eval, NoGradient())
             pred = self.model.observe(states[:, obs_index])
             terms = self.parallel.rows(cost_terms(pred, window))  # (N, 5): the whole fleet's
@@ -613,12 +628,15 @@ class Assimilator:
     def _gated(self) -> bool:
         return isinstance(self.closure, MLPClosure) and self.closure.config.domain_margin is not None
 
-    def _extend_seen(self, inputs: list) -> None:
-        """Widen the agent's seen box with the closure inputs along a trajectory (one per output
-        time, each ``(env,)``), every rank's; nothing for an agent without a domain margin."""
+    def _extend_seen(self, t_eval: Tensor, states: Tensor) -> bool:
+        """Widen the agent's seen box with its inputs along a trajectory ``states`` ``(env, T,
+        n_state)`` at times ``t_eval`` ``(T,)``, every rank's; whether the box changed (never for
+        an agent without a domain margin)."""
         if not self._gated():
-            return
+            return False
+        old = (self.closure.seen_lo.clone(), self.closure.seen_hi.clone())
         with torch.no_grad():
+            inputs = closure_inputs_along(self.model, self.fleet, t_eval, states)
             f = torch.stack([self.closure.features(x) for x in inputs], dim=1)  # (env, T, F)
             finite = torch.isfinite(f)
             lo = torch.where(finite, f, math.inf).amin(1)
@@ -626,6 +644,7 @@ class Assimilator:
             both = self.parallel.rows(torch.cat([lo, hi], dim=-1))  # (N, 2F): the whole fleet's
         n = f.shape[-1]
         self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
+        return not (torch.equal(old[0], self.closure.seen_lo) and torch.equal(old[1], self.closure.seen_hi))
 
     def _extend_seen_along(self, s_start: Tensor, t_start: float, t_eval: Tensor) -> None:
         """``_extend_seen`` along the window's trajectory under the agent as it stands. If that
@@ -640,7 +659,7 @@ class Assimilator:
         except SimulationError:
             failed = True
         if not self.parallel.any(failed):  # every rank widens the box alike, or none does
-            self._extend_seen(closure_inputs_along(self.model, self.fleet, t_eval, states))
+            self._extend_seen(t_eval, states)
 
     # Shares of its change since the initial agent that the carried-over agent may keep, tried
     # when it predicts the new window worse than the initial agent or cannot integrate it

@@ -17,8 +17,10 @@ GRAVITY_M_S2 = 9.80665
 class ClosureInputs(NamedTuple):
     """What a closure may depend on, per environment (every field shaped ``(env,)``).
 
-    Temperatures in K, densities in kg/m^3, lengths in m, frequency in Hz. ``vapor`` and
-    ``liquid`` are the surrogate's ``PhaseProps`` of each phase (k, mu, cp, beta, ...).
+    Temperatures in K, densities in kg/m^3, lengths in m, frequency in Hz, masses in kg, mass
+    flows in kg/s. ``vapor`` and ``liquid`` are the surrogate's ``PhaseProps`` of each phase
+    (k, mu, cp, beta, ...). The four mass flows are the operations applied over the segment
+    (``tankode.forcing.Forcing``): an inflow or outflow stirs the phase it crosses.
     """
 
     T_v_K: Tensor
@@ -34,6 +36,12 @@ class ClosureInputs(NamedTuple):
     aspect_ratio: Tensor
     slosh_amplitude_m: Tensor
     slosh_frequency_Hz: Tensor
+    m_v_kg: Tensor
+    m_l_kg: Tensor
+    mdot_v_in_kg_s: Tensor
+    mdot_v_out_kg_s: Tensor
+    mdot_l_in_kg_s: Tensor
+    mdot_l_out_kg_s: Tensor
 
 
 class Closure(nn.Module):

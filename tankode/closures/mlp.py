@@ -1,9 +1,14 @@
 """The agent: a small MLP closure theta = g(s; w) learned from data (paper, section 5.2).
 
-Dimensionless inputs, chosen by name in ``MLPConfig.features``. The default
-(``FEATURE_NAMES``) is the paper's seven plus ``f_over_f11`` (8 inputs, 484 weights, as the
-paper); ``EXTENDED_FEATURES`` replaces ``f_over_f11`` by ``lnRe_wave`` and ``lnGr_li_signed``
-(9 inputs, 500 weights; see "Extended inputs" below):
+Dimensionless inputs, chosen by name in ``MLPConfig.features``, in sets named by
+``INPUT_SETS``:
+
+* ``"paper"`` (``FEATURE_NAMES``, ``MLPConfig``'s default): the paper's seven plus
+  ``f_over_f11`` (8 inputs, 484 weights, as the paper);
+* ``"operations"`` (``OPERATION_FEATURES``, the default of ``AssimilationConfig``): those eight
+  plus the four operations' turnovers (12 inputs, 548 weights; see "Operations" below);
+* ``"extended"`` (``EXTENDED_FEATURES``): ``f_over_f11`` replaced by ``lnRe_wave`` and
+  ``lnGr_li_signed`` (9 inputs, 500 weights; see "Extended inputs" below).
 
 ================  ==========================================================  ==============
  name             feature                                                     scaling
@@ -21,6 +26,10 @@ paper); ``EXTENDED_FEATURES`` replaces ``f_over_f11`` by ``lnRe_wave`` and ``lnG
  dT_wv_signed     tanh((T_w - T_v) / 1 K): wall warmer or colder than ullage  as is
  dT_vi_signed     tanh((T_v - T_sat) / 1 K): superheated or subcooled ullage  as is
  fill             H_l / H, the level's share of the tank's height             as is
+ lnTurn_v_in      ln(1 + mdot_v_in t_op / m_v): vapour injected (ours)        as is
+ lnTurn_v_out     ln(1 + mdot_v_out t_op / m_v): vapour vented (ours)         as is
+ lnTurn_l_in      ln(1 + mdot_l_in t_op / m_l): liquid filled (ours)          as is
+ lnTurn_l_out     ln(1 + mdot_l_out t_op / m_l): liquid drained (ours)        as is
 ================  ==========================================================  ==============
 
 The paper's ``ln(|Gr| + 1)`` inputs carry the size of a temperature difference, not its sign:
@@ -38,6 +47,18 @@ so nothing measurable is lost. The sign of ``lnGr_li_signed`` is smoothed the sa
 ``f_over_f11`` is tankode's (not in the paper): the wave a given forcing raises
 depends on how close ``f_e`` is to the tank's first natural frequency ``f_11`` (which moves
 with the fill level), which ``Re`` alone cannot tell.
+
+Operations (tankode's, not the paper's). The paper's inputs describe the tank at rest and its
+sloshing; they cannot tell a hold from a fill or a vent at the same temperatures, although an
+inflow or outflow stirs the phase it crosses (a subcooled fill mixes the liquid under the
+interface; a warm-gas jet or a vent stirs the ullage). The turnovers are each flow's share of
+its phase's mass moved per ``t_op = 10 h`` (``OPERATION_TIME_S``), logarithmic so that a
+trickle and a fast transfer both stay O(1): a flow moving 1 % of its phase per hour reads
+ln 1.1 = 0.095, about one domain margin (below), and a drain of the whole liquid in an hour
+reads 2.4. They are 0 at rest. With the seen box, their main use: an operation the stream
+has not shown (a fill after a drain and a hold) lies outside the box, so the agent falls back
+to its base there instead of carrying a coefficient learned on another operation (measured on
+another simulator's horizontal cylinder, ``experiments/README.md`` section 5).
 
 Extended inputs (a measured experiment, not the default). The paper's seven inputs cannot tell
 two things the interface heat transfer depends on:
@@ -88,7 +109,8 @@ widens the box with each window's trajectory before and after training on it
 of values each seen apart counts as seen), and the base must be a physical closure for the
 fade to mean anything (the ``"constant"`` base fades to mid-range constants).
 
-Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 500 with the extended inputs.
+Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 548 with the operations, 500 with the
+extended inputs.
 """
 
 from __future__ import annotations
@@ -106,10 +128,12 @@ DT_SMOOTH_K = 0.05  # temperature differences are resolved down to this (module 
 WAVE_DAMPING = 0.1  # modal damping ratio of the lnRe_wave estimate (module docstring)
 SIGNED_SCALE_K = 1.0  # K; the signed differences saturate beyond a few kelvin (module docstring)
 _PAPER_SEVEN = ("Pr_v", "Pr_l", "R_over_H", "Re_1e4", "lnGr_wv", "lnGr_wl", "lnGr_vl")
-FEATURE_NAMES = (*_PAPER_SEVEN, "f_over_f11")  # the default: eight inputs, 484 weights (paper)
+OPERATION_TIME_S = 36_000.0  # s; t_op of the turnovers: 1 %/h of a phase reads ~0.1 (module docstring)
+FEATURE_NAMES = (*_PAPER_SEVEN, "f_over_f11")  # MLPConfig's default: eight inputs, 484 weights (paper)
+OPERATION_FEATURES = (*FEATURE_NAMES, "lnTurn_v_in", "lnTurn_v_out", "lnTurn_l_in", "lnTurn_l_out")  # docstring
 EXTENDED_FEATURES = (*_PAPER_SEVEN, "lnRe_wave", "lnGr_li_signed")  # nine inputs, 500 weights (docstring)
 N_FEATURES = len(FEATURE_NAMES)
-INPUT_SETS = {"default": FEATURE_NAMES, "extended": EXTENDED_FEATURES}  # by name, for scripts and CLIs
+INPUT_SETS = {"paper": FEATURE_NAMES, "operations": OPERATION_FEATURES, "extended": EXTENDED_FEATURES}  # by name
 
 
 @dataclass(frozen=True)
@@ -196,6 +220,10 @@ _FEATURES = {
     "dT_wv_signed": lambda x: torch.tanh((x.T_w_K - x.T_v_K) / SIGNED_SCALE_K),
     "dT_vi_signed": lambda x: torch.tanh((x.T_v_K - x.T_sat_K) / SIGNED_SCALE_K),
     "fill": lambda x: x.H_l_m * x.aspect_ratio / x.radius_m,
+    "lnTurn_v_in": lambda x: torch.log1p(x.mdot_v_in_kg_s * OPERATION_TIME_S / x.m_v_kg),
+    "lnTurn_v_out": lambda x: torch.log1p(x.mdot_v_out_kg_s * OPERATION_TIME_S / x.m_v_kg),
+    "lnTurn_l_in": lambda x: torch.log1p(x.mdot_l_in_kg_s * OPERATION_TIME_S / x.m_l_kg),
+    "lnTurn_l_out": lambda x: torch.log1p(x.mdot_l_out_kg_s * OPERATION_TIME_S / x.m_l_kg),
 }
 
 
@@ -248,16 +276,18 @@ class MLPClosure(Closure):
         return mlp_features(x, self.config.features)
 
     def extend_domain(self, points: Tensor) -> None:
-        """Widen the seen box to hold ``points`` ``(..., n_features)`` (feature units); non-finite
-        points are skipped. Does nothing without a ``domain_margin``."""
+        """Widen the seen box to hold ``points`` ``(..., n_features)`` (feature units); a non-finite
+        value is skipped (its point's other features still count). Does nothing without a
+        ``domain_margin``."""
         if self.config.domain_margin is None:
             return
         f = points.detach().to(torch.float64).reshape(-1, len(self.config.features))
-        f = f[torch.isfinite(f).all(-1)]
-        if len(f):
-            with torch.no_grad():
-                self.seen_lo.copy_(torch.minimum(self.seen_lo, f.amin(0)))
-                self.seen_hi.copy_(torch.maximum(self.seen_hi, f.amax(0)))
+        if not len(f):
+            return
+        ok = torch.isfinite(f)
+        with torch.no_grad():
+            self.seen_lo.copy_(torch.minimum(self.seen_lo, torch.where(ok, f, math.inf).amin(0)))
+            self.seen_hi.copy_(torch.maximum(self.seen_hi, torch.where(ok, f, -math.inf).amax(0)))
 
     def gate(self, features: Tensor) -> Tensor | None:
         """``g(x)`` ``(..., 1)`` of the module docstring at scaled ``features``, or None (no gate:
@@ -297,4 +327,5 @@ class MLPClosure(Closure):
         return self._correction(self.features(x))
 
 
-__all__ = ["MLPClosure", "MLPConfig", "BASES", "mlp_features", "FEATURE_NAMES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES"]
+__all__ = ["MLPClosure", "MLPConfig", "BASES", "mlp_features", "FEATURE_NAMES", "OPERATION_FEATURES",
+           "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES", "OPERATION_TIME_S"]
