@@ -660,7 +660,7 @@ def test_an_unseen_fill_is_forecast_by_the_base_not_by_what_the_drain_taught(tmp
     """``tests/nodal_sim.py``'s horizontal cylinder (McAdams truth, its own two-node wall): drained
     and held in the training part, filled with subcooled liquid while venting in the held-out
     part. The fill's turnover lies outside the agent's seen box, so the forecast follows the
-    base there: within 8 sigma in pressure (measured 4.2-4.8 sigma). With the paper's eight inputs
+    base there: within 8 sigma in pressure. With the paper's eight inputs
     the fill looks like the hold before it and the agent's drain-and-hold coefficients carry
     into it (measured 25 sigma)."""
     import nodal_sim
