@@ -177,9 +177,8 @@ class TankModel(nn.Module):
             vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),
             aspect_ratio=g.aspect_ratio.expand_as(H_l),
             slosh_amplitude_m=forcing.slosh_amplitude_m, slosh_frequency_Hz=forcing.slosh_frequency_Hz,
-            m_v_kg=m_v, m_l_kg=m_l, mdot_v_in_kg_s=forcing.mdot_v_in_kg_s.expand_as(H_l),
-            mdot_v_out_kg_s=forcing.mdot_v_out_kg_s.expand_as(H_l), mdot_l_in_kg_s=forcing.mdot_l_in_kg_s.expand_as(H_l),
-            mdot_l_out_kg_s=forcing.mdot_l_out_kg_s.expand_as(H_l),
+            m_v_kg=m_v, m_l_kg=m_l, mdot_v_in_kg_s=forcing.mdot_v_in_kg_s, mdot_v_out_kg_s=forcing.mdot_v_out_kg_s,
+            mdot_l_in_kg_s=forcing.mdot_l_in_kg_s, mdot_l_out_kg_s=forcing.mdot_l_out_kg_s,
         )
 
     def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:

@@ -268,12 +268,12 @@ def test_the_learned_correction_fades_to_the_base_outside_the_seen_box_and_only_
     f_far[0, 3] += 1.0
     assert gated.log_theta(f_far, log_base).abs().max() < 1e-30
     # The box only widens; a non-finite value is skipped, its point's other features still count.
-    gated.extend_domain(torch.tensor([[math.nan] * f_seen.shape[1]], dtype=torch.float64))
-    gated.extend_domain(f_seen)
+    assert not gated.extend_domain(torch.tensor([[math.nan] * f_seen.shape[1]], dtype=torch.float64))
+    assert not gated.extend_domain(f_seen)  # inside: the box, and so the agent, did not change
     assert torch.allclose(gated.seen_hi - gated.seen_lo, torch.full_like(gated.seen_lo, 0.1), rtol=1e-12)
     partial = f_seen + 0.2
     partial[0, 0] = math.inf
-    gated.extend_domain(partial)
+    assert gated.extend_domain(partial)
     assert float(gated.seen_hi[1]) == pytest.approx(float(f_seen[0, 1]) + 0.2, abs=1e-15)
     assert float(gated.seen_hi[0]) == pytest.approx(float(f_seen[0, 0]) + 0.05, abs=1e-15)
 

@@ -634,7 +634,6 @@ class Assimilator:
         an agent without a domain margin)."""
         if not self._gated():
             return False
-        old = (self.closure.seen_lo.clone(), self.closure.seen_hi.clone())
         with torch.no_grad():
             inputs = closure_inputs_along(self.model, self.fleet, t_eval, states)
             f = torch.stack([self.closure.features(x) for x in inputs], dim=1)  # (env, T, F)
@@ -643,8 +642,7 @@ class Assimilator:
             hi = torch.where(finite, f, -math.inf).amax(1)
             both = self.parallel.rows(torch.cat([lo, hi], dim=-1))  # (N, 2F): the whole fleet's
         n = f.shape[-1]
-        self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
-        return not (torch.equal(old[0], self.closure.seen_lo) and torch.equal(old[1], self.closure.seen_hi))
+        return self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
 
     def _extend_seen_along(self, s_start: Tensor, t_start: float, t_eval: Tensor) -> None:
         """``_extend_seen`` along the window's trajectory under the agent as it stands. If that

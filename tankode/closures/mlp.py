@@ -205,6 +205,10 @@ def _gr_li_signed(x: ClosureInputs) -> Tensor:
     return torch.tanh(dT / DT_SMOOTH_K) * _ln_gr(x.liquid.beta, dT, _nu_l(x), x.radius_m) / 30
 
 
+def _turnover(mdot_kg_s: Tensor, m_kg: Tensor) -> Tensor:
+    return torch.log1p(mdot_kg_s * OPERATION_TIME_S / m_kg)
+
+
 # name -> scaled feature (env,) (module docstring)
 _FEATURES = {
     "Pr_v": lambda x: x.vapor.mu * x.vapor.cp / x.vapor.k / 2,
@@ -220,10 +224,10 @@ _FEATURES = {
     "dT_wv_signed": lambda x: torch.tanh((x.T_w_K - x.T_v_K) / SIGNED_SCALE_K),
     "dT_vi_signed": lambda x: torch.tanh((x.T_v_K - x.T_sat_K) / SIGNED_SCALE_K),
     "fill": lambda x: x.H_l_m * x.aspect_ratio / x.radius_m,
-    "lnTurn_v_in": lambda x: torch.log1p(x.mdot_v_in_kg_s * OPERATION_TIME_S / x.m_v_kg),
-    "lnTurn_v_out": lambda x: torch.log1p(x.mdot_v_out_kg_s * OPERATION_TIME_S / x.m_v_kg),
-    "lnTurn_l_in": lambda x: torch.log1p(x.mdot_l_in_kg_s * OPERATION_TIME_S / x.m_l_kg),
-    "lnTurn_l_out": lambda x: torch.log1p(x.mdot_l_out_kg_s * OPERATION_TIME_S / x.m_l_kg),
+    "lnTurn_v_in": lambda x: _turnover(x.mdot_v_in_kg_s, x.m_v_kg),
+    "lnTurn_v_out": lambda x: _turnover(x.mdot_v_out_kg_s, x.m_v_kg),
+    "lnTurn_l_in": lambda x: _turnover(x.mdot_l_in_kg_s, x.m_l_kg),
+    "lnTurn_l_out": lambda x: _turnover(x.mdot_l_out_kg_s, x.m_l_kg),
 }
 
 
@@ -275,19 +279,23 @@ class MLPClosure(Closure):
         """The agent's scaled input features ``(env, n_features)`` at ``x`` (module docstring)."""
         return mlp_features(x, self.config.features)
 
-    def extend_domain(self, points: Tensor) -> None:
+    def extend_domain(self, points: Tensor) -> bool:
         """Widen the seen box to hold ``points`` ``(..., n_features)`` (feature units); a non-finite
-        value is skipped (its point's other features still count). Does nothing without a
-        ``domain_margin``."""
+        value is skipped (its point's other features still count). Returns whether the box
+        changed (never without a ``domain_margin``)."""
         if self.config.domain_margin is None:
-            return
+            return False
         f = points.detach().to(torch.float64).reshape(-1, len(self.config.features))
         if not len(f):
-            return
+            return False
         ok = torch.isfinite(f)
         with torch.no_grad():
-            self.seen_lo.copy_(torch.minimum(self.seen_lo, torch.where(ok, f, math.inf).amin(0)))
-            self.seen_hi.copy_(torch.maximum(self.seen_hi, torch.where(ok, f, -math.inf).amax(0)))
+            lo = torch.minimum(self.seen_lo, torch.where(ok, f, math.inf).amin(0))
+            hi = torch.maximum(self.seen_hi, torch.where(ok, f, -math.inf).amax(0))
+            changed = not (torch.equal(lo, self.seen_lo) and torch.equal(hi, self.seen_hi))
+            self.seen_lo.copy_(lo)
+            self.seen_hi.copy_(hi)
+        return changed
 
     def gate(self, features: Tensor) -> Tensor | None:
         """``g(x)`` ``(..., 1)`` of the module docstring at scaled ``features``, or None (no gate:
