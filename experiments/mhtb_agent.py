@@ -92,8 +92,9 @@ def _solver_rows(runs, quick) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    quick, out = study_args(argv, __doc__.splitlines()[0], "both tests cut to 1 h, 2 iterations, the node with its shell trained from 3 K/W, on both",
+    args = study_args(argv, __doc__.splitlines()[0], "both tests cut to 1 h, 2 iterations, the node with its shell trained from 3 K/W, on both",
                             "mhtb_agent")
+    quick, out = args.quick, args.out
     config = QUICK_CONFIG if quick else CONFIG
     runs = {r.name: r.with_measured_initial() for r in mhtb_runs()}
     if quick:

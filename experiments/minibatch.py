@@ -51,8 +51,9 @@ PAPER = ("smaller batches are cheaper per iteration but noisier, and converge to
 
 def main(argv: list[str] | None = None) -> dict:
     """Run the study and write its outputs under ``--out``; return the summary."""
-    quick, out = study_args(argv, __doc__.splitlines()[0], "one 2.5-minute window, 2 iterations, 3 fractions, 2 seeds",
+    args = study_args(argv, __doc__.splitlines()[0], "one 2.5-minute window, 2 iterations, 3 fractions, 2 seeds",
                             "minibatch")
+    quick, out = args.quick, args.out
     config, fractions, seeds, train_s = (QUICK, QUICK_FRACTIONS, QUICK_SEEDS, QUICK_TRAIN_DURATION_S) if quick \
         else (FULL, FRACTIONS, SEEDS, TRAIN_DURATION_S)
     case = synthetic_data(CASE, NOISE, NOISE_SEED, QUICK_DURATION_S if quick else None)

@@ -63,7 +63,7 @@ from tankode.threads import single_threaded
 
 from .checkpoint import save_checkpoint
 from .cost import Window, cost, cost_terms
-from .distributed import SingleProcess
+from .distributed import SingleProcess, group_sum
 from .evaluate import closure_inputs_along
 from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
 from .mechanism_params import TrainedMechanisms
@@ -437,6 +437,29 @@ class Assimilator:
                               t_eval, self.scale, self.solver, gradient)
         return states
 
+    # -- the data cost by groups of environments (GroupedAssimilator) --------------------------
+
+    @property
+    def cost_groups(self) -> list[list[int]]:
+        """Environment indices whose data cost is computed and differentiated together: the fleet."""
+        return [list(range(self.fleet.n_env))]
+
+    def _group_predict(self, g: int, s_start: Tensor, t_start: float, t_eval: Tensor, gradient) -> Tensor:
+        """States ``(env_g, T, n)`` of cost group ``g``, from the whole fleet's ``s_start``."""
+        return self.predict(s_start, t_start, t_eval, gradient)
+
+    def _group_model(self, g: int) -> tuple[TankModel, Fleet]:
+        """Cost group ``g``'s right-hand side and fleet."""
+        return self.model, self.fleet
+
+    def _group_observe(self, g: int, states: Tensor) -> Tensor:
+        """Observations ``(env_g, T, 5)`` of cost group ``g``'s states."""
+        return self._group_model(g)[0].observe(states)
+
+    def _group_windows(self, window: Window) -> list[Window]:
+        """The cost groups' parts of the fleet's ``window``, each from its own runs (times included)."""
+        return [window]
+
     def _span(self, k: int, s_next: Tensor) -> tuple[float, Tensor]:
         """(t_start, s_start) of window k's integration for the configured mode."""
         if self.config.mode == "growing" or k == 0:
@@ -466,7 +489,9 @@ class Assimilator:
         return torch.cat([tank, s_model[:, N_STATE:].detach()], dim=-1)
 
     def _replay(self, k: int) -> list[tuple[float, Tensor, Window, Tensor, Tensor]]:
-        """Window k's replay sample: ``(t_start, s_start, window, t_eval, obs_index)`` per segment (module docstring)."""
+        """Window k's replay sample (module docstring): per segment ``(t_start, s_start, parts)``,
+        ``parts`` one ``(window, t_eval, obs_index)`` per cost group (each from its own runs' times,
+        as a data-parallel rank takes them)."""
         cfg = self.config
         t_k = self.windows[k][0]
         if not self.history:
@@ -483,9 +508,12 @@ class Assimilator:
             window = Window.from_runs(self.fleet.runs, a, a + cfg.replay_s)
             if not self.parallel.any(len(window) > 0):  # no data there (with data parallelism: on any rank)
                 continue
-            t_eval = torch.cat([torch.tensor([a], dtype=torch.float64), window.t_s,
-                                torch.tensor([a + cfg.replay_s], dtype=torch.float64)]).unique()
-            out.append((a, states[:, i].detach(), window, t_eval, torch.searchsorted(t_eval, window.t_s)))
+            parts = []
+            for w in self._group_windows(window):
+                t_eval = torch.cat([torch.tensor([a], dtype=torch.float64), w.t_s,
+                                    torch.tensor([a + cfg.replay_s], dtype=torch.float64)]).unique()
+                parts.append((w, t_eval, torch.searchsorted(t_eval, w.t_s)))
+            out.append((a, states[:, i].detach(), parts))
         return out
 
     # -- one window ----------------------------------------------------------------------------
@@ -527,17 +555,26 @@ class Assimilator:
         w_new = (t1 - self.windows[k][0]) / (t1 - self.fleet.t0_s) if replay else 1.0
         w_replay = (1.0 - w_new) / max(len(replay), 1)
 
-        def data_cost(mask=None):
+        # Each cost group's data cost is its own graph; groups are summed as data-parallel ranks
+        # are (group_sum), so one process reproduces a distributed job's arithmetic.
+        windows = self._group_windows(window)
+        indices = [torch.searchsorted(t_eval, w.t_s) for w in windows]
+        shares = [len(idx) / self.fleet.n_env for idx in self.cost_groups]
+
+        def group_cost(g, mask):
             s0 = s_start if estimate is None else estimate.state()
-            states = self.predict(s0, t_start, t_eval, cfg.gradient)
-            pred = self.model.observe(states[:, obs_index])
-            J = w_new * cost(pred, window, mask)
-            for a, s_a, window_a, t_eval_a, index_a in replay:
-                J = J + w_replay * cost(self.model.observe(self.predict(s_a, a, t_eval_a, cfg.gradient)[:, index_a]),
-                                        window_a)
+            states = self._group_predict(g, s0, t_start, t_eval, cfg.gradient)
+            J = w_new * cost(self._group_observe(g, states[:, indices[g]]), windows[g], mask)
+            for a, s_a, parts in replay:
+                window_a, t_eval_a, index_a = parts[g]
+                states_a = self._group_predict(g, s_a, a, t_eval_a, cfg.gradient)
+                J = J + w_replay * cost(self._group_observe(g, states_a[:, index_a]), window_a)
             return J
 
         trained_tensors = [p for _, p in named]
+
+        def data_cost(mask=None):
+            return group_sum([lambda g=g: group_cost(g, mask) for g in range(len(windows))], shares, trained_tensors)
 
         def loss(mask=None):
             nonlocal in_backward
@@ -635,12 +672,15 @@ class Assimilator:
         if not self._gated():
             return False
         with torch.no_grad():
-            inputs = closure_inputs_along(self.model, self.fleet, t_eval, states)
-            f = torch.stack([self.closure.features(x) for x in inputs], dim=1)  # (env, T, F)
-            finite = torch.isfinite(f)
-            lo = torch.where(finite, f, math.inf).amin(1)
-            hi = torch.where(finite, f, -math.inf).amax(1)
-            both = self.parallel.rows(torch.cat([lo, hi], dim=-1))  # (N, 2F): the whole fleet's
+            rows = []
+            for g, idx in enumerate(self.cost_groups):  # each group's features as its rank computes them
+                model, fleet = self._group_model(g)
+                inputs = closure_inputs_along(model, fleet, t_eval, states[idx])
+                f = torch.stack([self.closure.features(x) for x in inputs], dim=1)  # (env_g, T, F)
+                finite = torch.isfinite(f)
+                rows.append(torch.cat([torch.where(finite, f, math.inf).amin(1),
+                                       torch.where(finite, f, -math.inf).amax(1)], dim=-1))
+            both = self.parallel.rows(torch.cat(rows, dim=0))  # (N, 2F): the whole fleet's
         n = f.shape[-1]
         return self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
 

@@ -51,7 +51,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -187,6 +187,34 @@ class _Reduced(torch.autograd.Function):
             out.append((g * flat[offset:offset + n]).reshape(shape).to(dtype))
             offset += n
         return (None, None, *out)
+
+
+def group_sum(parts: Sequence[Callable[[], Tensor]], shares: Sequence[float], params: list[Tensor]) -> Tensor:
+    """``sum_g shares[g] * parts[g]()``, summed as a data-parallel job sums its ranks.
+
+    One part: its value with its graph, untouched. Several (a process integrating the fleet in
+    groups, ``GroupedAssimilator``): each part's value and gradient with respect to ``params``
+    are taken now, each alone (``torch.autograd.grad``), weighted by its share and summed in
+    order, exactly as ``DataParallel.data_cost`` weighs a rank's and the all-reduce adds them;
+    the scalar returned deposits that gradient on backward. A one-process run in a two-rank
+    job's shards therefore takes the job's steps bit for bit (``tests/test_distributed.py``).
+
+    Args:
+        parts: ``part() -> J_g``, a scalar with its graph.
+        shares: each part's weight (its environments over the fleet's).
+        params: the tensors the gradient is taken for.
+    """
+    if len(parts) == 1:
+        return parts[0]()
+    value = flat = None
+    for part, share in zip(parts, shares):
+        J = part()
+        found = torch.autograd.grad(J, params, allow_unused=True) if J.requires_grad else [None] * len(params)
+        grads = [torch.zeros_like(p) if g is None else g for p, g in zip(params, found)]
+        v = (share * J.detach().to(torch.float64)).reshape(1)
+        f = torch.cat([(share * g.detach().to(torch.float64)).reshape(-1) for g in grads])
+        value, flat = (v, f) if value is None else (value + v, flat + f)
+    return _Reduced.apply(value[0], flat, *params)
 
 
 def _first_line(err: BaseException) -> str:
@@ -722,4 +750,4 @@ def launch_from_environment(timeout_s: float | None = None) -> Launch | None:
 
 
 __all__ = ["DataParallel", "DistributedConfig", "Launch", "RankFailure", "ShardCost", "SingleProcess", "Timings",
-           "launch_from_environment", "probe_batches", "probe_costs", "shard_by_cost", "in_distributed_environment"]
+           "group_sum", "launch_from_environment", "probe_batches", "probe_costs", "shard_by_cost", "in_distributed_environment"]

@@ -317,26 +317,43 @@ class NoiseStudySpec:
         return config, ends, self.quick_duration_s
 
 
-def study_args(argv: Sequence[str] | None, description: str, quick_help: str, name: str) -> tuple[bool, Path]:
-    """The command line every study script shares: ``--quick`` and ``--out`` (default ``results/<name>``).
+@dataclass(frozen=True)
+class StudyArgs:
+    """The command line every study script shares.
 
-    Returns (quick, output folder), the folder created.
+    Attributes:
+        quick: the CI smoke run instead of the full study.
+        out: the output folder (created).
+        jobs: processes for a study's independent trainings (1: in this process).
     """
+
+    quick: bool
+    out: Path
+    jobs: int
+
+
+def study_args(argv: Sequence[str] | None, description: str, quick_help: str, name: str) -> StudyArgs:
+    """Parse ``--quick``, ``--out`` (default ``results/<name>``) and ``--jobs``; create the folder."""
     import argparse
 
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--quick", action="store_true", help=f"{quick_help} (CI smoke run)")
     ap.add_argument("--out", default=f"results/{name}")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="processes for independent trainings, where the study has several (default 1)")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs must be at least 1, got {args.jobs}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    return args.quick, out
+    return StudyArgs(args.quick, out, args.jobs)
 
 
 def noise_study_main(spec: NoiseStudySpec, argv: Sequence[str] | None = None, description: str = "") -> dict:
     """Command line of a noise-study script (``--quick``, ``--out``): run, write the outputs, return the summary."""
-    quick, out = study_args(argv, description or spec.title, f"{spec.quick_duration_s / 60:g} minutes of data, "
-                            f"{spec.quick_iters} iterations per window", spec.name)
+    args = study_args(argv, description or spec.title, f"{spec.quick_duration_s / 60:g} minutes of data, "
+                      f"{spec.quick_iters} iterations per window", spec.name)
+    quick, out = args.quick, args.out
     config, snapshots_s, duration_s = spec.mode(quick)
     res = noise_study(spec.case, spec.levels, config, snapshots_s, duration_s=duration_s, seed=spec.seed,
                       logdir=out / "tensorboard")
@@ -399,4 +416,4 @@ def noise_floor_J(case: SyntheticCase) -> float:
 
 
 __all__ = ["SyntheticCase", "synthetic_data", "StreamRecord", "assimilate_stream", "whole_run_error",
-           "NoiseStudyResult", "noise_study", "write_noise_study", "NoiseStudySpec", "noise_study_main", "study_args", "write_rows", "MiniBatchStudyResult", "minibatch_study", "spread", "noise_floor_J"]
+           "NoiseStudyResult", "noise_study", "write_noise_study", "NoiseStudySpec", "noise_study_main", "study_args", "StudyArgs", "write_rows", "MiniBatchStudyResult", "minibatch_study", "spread", "noise_floor_J"]
