@@ -97,6 +97,15 @@ class Fleet:
             raise ValueError(f"runs of one fleet must start at the same time stamp, got {sorted(t0)} s")
         return t0.pop()
 
+    def sampling_intervals_s(self) -> np.ndarray:
+        """Each run's typical sampling interval ``(env,)`` (s): the median spacing of the times at
+        which any channel was measured (0 for a run with fewer than two such times)."""
+        out = []
+        for r in self.runs:
+            t = r.observations.t_s[np.isfinite(r.observations.values).any(axis=1)]
+            out.append(float(np.median(np.diff(t))) if len(t) > 1 else 0.0)
+        return np.array(out)
+
     def initial_state(self, mechanisms=()) -> Tensor:
         """State ``(env, 7)`` from each run's initial (p_v, T_v, T_l, T_w, fill ratio), via CoolProp.
 

@@ -512,6 +512,22 @@ def test_adjoint_divergence_on_a_stiff_real_tank_is_named_and_checkpointed_train
     assert bp.note == "" and bp.n_evals >= 1 and np.isfinite(bp.grad_norm) and bp.grad_norm > 0
 
 
+def test_replayed_segments_span_three_samples_of_the_sparsest_run():
+    """A run logged every 120 s (a real tank's rate, not a simulator's) gets 360-s replayed
+    segments, each holding data; a run sampled every 10 s keeps the configured 200 s."""
+    dense = _data(_short_run(1000.0))
+    obs = dense.observations
+    sparse = dense.replace(name="sparse", observations=Observations(obs.t_s[::12], obs.values[::12]))
+    config = AssimilationConfig(window_s=200.0, iters=1, replay_segments=2)
+    assert Assimilator([dense], config).replay_s == 200.0
+    a = Assimilator([sparse], config)
+    assert a.replay_s == pytest.approx(3 * float(np.median(np.diff(sparse.observations.t_s))))
+    assert a.replay_s == pytest.approx(360.0)
+    a.run()
+    sample = a._replay(4)
+    assert sample and all(len(parts[0][0]) > 0 for _, _, parts in sample)
+
+
 def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exactly(tmp_path):
     """mode="replay": each update replays at most ``replay_segments`` earlier segments, all within
     the data seen so far, drawn alike for the same seed; a run interrupted after window 2 and resumed from its checkpoint ends with the same weights."""

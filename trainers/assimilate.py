@@ -130,6 +130,8 @@ class AssimilationConfig:
         replay_segments: with ``mode="replay"``, the earlier segments replayed per update.
         replay_s: with ``mode="replay"``, the length of each replayed segment (s); with the
             defaults an update integrates the window plus 3 x 200 s, twice a 10-minute window.
+            Lengthened to ``REPLAY_MIN_SAMPLES`` (3) sampling intervals of the most sparsely
+            sampled run (``Assimilator.replay_s``), so that every segment holds data.
         wall: ``"two_node"``: the dry and the wetted wall at their own temperatures
             (``tankode.mechanisms.TwoNodeWall``), the shell's sheet resistance trained with the
             agent; ``"lumped"``: the paper's one wall temperature.
@@ -345,6 +347,9 @@ class AssimilationResult:
 # keep the linear state map near the state where it was taken.
 _OFFSET = "window_start_offset"
 START_OFFSET_BOUND_SIGMAS = 30.0
+# A replayed segment spans at least this many sampling intervals of the most sparsely sampled run:
+# a segment between two samples teaches nothing (real tanks, such as MHTB's, log every 5-30 min).
+REPLAY_MIN_SAMPLES = 3
 
 # The forward pass integrated, the gradient's did not: torchdiffeq's adjoint re-integrates the
 # state backwards in time, which diverges where the tank has a fast decaying mode (MHTB's light
@@ -424,6 +429,9 @@ class Assimilator:
         self.w0 = [p.detach().clone() for p in self.closure.parameters()]  # base_prior_weight's centre
         self.parallel = SingleProcess() if parallel is None else parallel
         self.parallel.check(self)
+        # The replayed segments' length (s), alike on every rank: see AssimilationConfig.replay_s.
+        sparsest = float(self.parallel.rows(torch.as_tensor(self.fleet.sampling_intervals_s())).max())
+        self.replay_s = max(config.replay_s, REPLAY_MIN_SAMPLES * sparsest)
 
     # -- forward pieces ------------------------------------------------------------------------
 
@@ -498,20 +506,20 @@ class Assimilator:
             return []
         times = torch.cat([t for t, _ in self.history])
         states = torch.cat([s for _, s in self.history], dim=1)
-        candidates = (times <= t_k - cfg.replay_s + 1e-9).nonzero().flatten()
+        candidates = (times <= t_k - self.replay_s + 1e-9).nonzero().flatten()
         if len(candidates) == 0:
             return []
         rng = np.random.default_rng([cfg.seed, k, 1])
         out = []
         for i in rng.choice(candidates.numpy(), size=cfg.replay_segments, replace=True):
             a = float(times[i])
-            window = Window.from_runs(self.fleet.runs, a, a + cfg.replay_s)
+            window = Window.from_runs(self.fleet.runs, a, a + self.replay_s)
             if not self.parallel.any(len(window) > 0):  # no data there (with data parallelism: on any rank)
                 continue
             parts = []
             for w in self._group_windows(window):
                 t_eval = torch.cat([torch.tensor([a], dtype=torch.float64), w.t_s,
-                                    torch.tensor([a + cfg.replay_s], dtype=torch.float64)]).unique()
+                                    torch.tensor([a + self.replay_s], dtype=torch.float64)]).unique()
                 parts.append((w, t_eval, torch.searchsorted(t_eval, w.t_s)))
             out.append((a, states[:, i].detach(), parts))
         return out
