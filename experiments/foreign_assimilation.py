@@ -18,12 +18,16 @@ The simulator is run through its command line (``python tests/nodal_sim.py``), a
 would arrive: as files.
 
     python experiments/foreign_assimilation.py [--quick] [--out results/foreign_assimilation]
-        [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S]
+        [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
+
+``--seeds`` trains one agent per seed (initial weights and replay draws) on the same run, to
+separate what the data teach from what one draw of the initial weights does.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import subprocess
 import sys
@@ -66,36 +70,39 @@ def main(argv=None) -> dict:
     ap.add_argument("--laws", nargs="+", choices=LAWS, default=list(LAWS))
     ap.add_argument("--scenarios", nargs="+", choices=[s for s, _ in SCENARIOS], default=[s for s, _ in SCENARIOS])
     ap.add_argument("--duration", type=float, default=None, help="cut each run to this many seconds (default: whole)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
+                    help="agent seeds (AssimilationConfig.seed: initial weights, replay draws); one row per seed")
     args = ap.parse_args(argv)
     quick, out = args.quick, Path(args.out)
     data = out / "runs"
     data.mkdir(parents=True, exist_ok=True)
     plan = [(s, law) for law in args.laws for s in args.scenarios] if not quick else [("upright_13m3", "mcadams")]
     duration_s = 2400.0 if quick else args.duration
-    config = AssimilationConfig()
     rows = []
     names = [s for s, _ in SCENARIOS]
-    for scenario, law in plan:
+    for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
+        config = AssimilationConfig(seed=agent_seed)
         seed = LAWS.index(law) * len(names) + names.index(scenario)  # the same run whatever the selection
         path = make_run(data, scenario, law, seed=seed, duration_s=duration_s)
         run = read_run(path)
         start = time.perf_counter()
         h = hold_out(run, config)
         rtf = h.real_time_factors
-        row = {"run": run.name, "scenario": scenario, "law": law, "duration_s": run.t_end_s - run.t0_s,
+        row = {"run": run.name, "scenario": scenario, "law": law, "agent_seed": agent_seed, "duration_s": run.t_end_s - run.t0_s,
                "held_out": h.held_out, "cost_windows": h.cost_windows, "fit": h.fit,
                "held_out_from_start": h.held_out_from_start, "cost_fit": h.cost_fit, "floor": h.floor,
                "rtf_min": min(rtf), "rtf_median": float(np.median(rtf)), "wall_s": time.perf_counter() - start,
                "mechanisms": h.mechanisms}
         rows.append(row)
         print(json.dumps(row), flush=True)
-    (out / "results.json").write_text(json.dumps({"config": config.to_json(), "noise": NOISE, "rows": rows}, indent=1))
-    lines = ["| law | run | held-out forecast RMSE / sigma (p, T_v, T_l, T_w, H_l) | J windows / floor | "
+    (out / "results.json").write_text(json.dumps({"config": AssimilationConfig().to_json(), "noise": NOISE,
+                                                  "rows": rows}, indent=1))
+    lines = ["| law | run | agent seed | held-out forecast RMSE / sigma (p, T_v, T_l, T_w, H_l) | J windows / floor | "
              "from the start: fit RMSE / sigma | held-out | J fit / floor | RTF min / median |",
-             "|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         fmt = lambda d: ", ".join(f"{d[c]:.1f}" for c in d)  # noqa: E731
-        lines.append(f"| {r['law']} | {r['scenario']} | {fmt(r['held_out'])} | {r['cost_windows'] / r['floor']:.1f} | "
+        lines.append(f"| {r['law']} | {r['scenario']} | {r['agent_seed']} | {fmt(r['held_out'])} | {r['cost_windows'] / r['floor']:.1f} | "
                      f"{fmt(r['fit'])} | {fmt(r['held_out_from_start'])} | {r['cost_fit'] / r['floor']:.1f} | "
                      f"{r['rtf_min']:.1f} / {r['rtf_median']:.1f} |")
     (out / "table.md").write_text("\n".join(lines) + "\n")
