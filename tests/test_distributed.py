@@ -29,7 +29,7 @@ from tankode.simulation import simulate
 from tankode.solver import Backprop
 from tankode.synthetic import solution_to_runs
 from trainers.assimilate import AssimilationConfig, Assimilator
-from trainers.distributed import DataParallel, ShardCost, SingleProcess, probe_costs, shard_by_cost
+from trainers.distributed import DataParallel, ShardCost, SingleProcess, group_sum, probe_costs, shard_by_cost
 from trainers.grouped import GroupedAssimilator
 
 BIN = Path(sys.executable).parent
@@ -129,6 +129,29 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def test_group_sum_is_the_weighted_sum_with_its_gradient():
+    """Two groups: the value and the gradient are sum_g share_g J_g and sum_g share_g dJ_g/dw
+    (each group differentiated alone); one group passes through untouched."""
+    torch.manual_seed(0)
+    w = torch.randn(3, dtype=torch.float64, requires_grad=True)
+    v = torch.randn(2, dtype=torch.float64, requires_grad=True)
+    parts = [lambda: (w.exp() * v.sum()).sum(), lambda: (w**2).sum() * v.prod()]
+    shares = [0.25, 0.75]
+    J = group_sum(parts, shares, [w, v])
+    J.backward()
+    ref_w, ref_v = w.grad.clone(), v.grad.clone()
+    w.grad = v.grad = None
+    expected = sum(s * f() for s, f in zip(shares, parts))
+    expected.backward()
+    assert float(J.detach()) == pytest.approx(float(expected.detach()), rel=1e-15)
+    assert torch.allclose(ref_w, w.grad, rtol=1e-14) and torch.allclose(ref_v, v.grad, rtol=1e-14)
+    one = parts[0]()
+    assert torch.equal(group_sum([lambda: one], [1.0], [w, v]), one)
+    with pytest.raises(ValueError, match="batch_fraction"):
+        GroupedAssimilator([get_case("case1").until(60.0)] * 2, dataclasses.replace(CONFIG, batch_fraction=0.5),
+                           [[0], [1]])
 
 
 def test_one_rank_data_parallel_update_equals_the_single_process_update(runs):
