@@ -689,7 +689,7 @@ class Assimilator:
                 rows.append(torch.cat([torch.where(finite, f, math.inf).amin(1),
                                        torch.where(finite, f, -math.inf).amax(1)], dim=-1))
             both = self.parallel.rows(torch.cat(rows, dim=0))  # (N, 2F): the whole fleet's
-        n = f.shape[-1]
+        n = both.shape[-1] // 2
         return self.closure.extend_domain(torch.cat([both[:, :n], both[:, n:]], dim=0))
 
     def _extend_seen_along(self, s_start: Tensor, t_start: float, t_eval: Tensor) -> None:

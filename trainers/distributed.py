@@ -206,15 +206,22 @@ def group_sum(parts: Sequence[Callable[[], Tensor]], shares: Sequence[float], pa
     """
     if len(parts) == 1:
         return parts[0]()
-    value = flat = None
+    total = None
     for part, share in zip(parts, shares):
         J = part()
         found = torch.autograd.grad(J, params, allow_unused=True) if J.requires_grad else [None] * len(params)
         grads = [torch.zeros_like(p) if g is None else g for p, g in zip(params, found)]
-        v = (share * J.detach().to(torch.float64)).reshape(1)
-        f = torch.cat([(share * g.detach().to(torch.float64)).reshape(-1) for g in grads])
-        value, flat = (v, f) if value is None else (value + v, flat + f)
-    return _Reduced.apply(value[0], flat, *params)
+        term = _weighted(J.detach(), grads, share)
+        total = term if total is None else total + term
+    return _Reduced.apply(total[0], total[1:], *params)
+
+
+def _weighted(value: Tensor, grads: list[Tensor], share: float) -> Tensor:
+    """``(1 + n_params,)``: a cost's value and flattened gradient times its share, in float64: what
+    a rank contributes to the all-reduce and a group to ``group_sum`` (one expression, so that
+    both sum the same numbers)."""
+    return torch.cat([(share * value.to(torch.float64)).reshape(1)]
+                     + [(share * g.detach().to(torch.float64)).reshape(-1) for g in grads])
 
 
 def _first_line(err: BaseException) -> str:
@@ -341,8 +348,7 @@ class DataParallel:
         share = self.n_local / self.n_total
         flags = torch.tensor([float(isinstance(failure, _REJECTED)),
                               float(failure is not None and not isinstance(failure, _REJECTED))], dtype=torch.float64)
-        buf = torch.cat([flags, (share * value.to(torch.float64)).reshape(1)]
-                        + [(share * g.detach().to(torch.float64)).reshape(-1) for g in grads])
+        buf = torch.cat([flags, _weighted(value, grads, share)])
         buf = self._all_reduce(buf, "a loss evaluation")
         self.timings.reduce_s += time.perf_counter() - end
         if buf[0] > 0 or buf[1] > 0:
