@@ -123,7 +123,7 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_assimilate(args) -> int:
-    from trainers.assimilate import AssimilationConfig, Assimilator
+    from trainers.assimilate import WINDOW_MIN_SAMPLES, AssimilationConfig, Assimilator, window_for
     from trainers.memory import MEMORIES
 
     from trainers.distributed import launch_from_environment
@@ -149,13 +149,20 @@ def cmd_assimilate(args) -> int:
     gradient = _gradient(args.gradient) if args.gradient else (
         AssimilationConfig.gradient if integrator == AssimilationConfig.integrator
         else _gradient("backprop" if integrator == "rosenbrock" else "adjoint"))
-    config = AssimilationConfig(window_s=args.window, mode=args.mode or AssimilationConfig.mode,
+    window_s = args.window
+    if window_s is None:  # from the data: a window must hold samples to learn from
+        window_s = window_for(runs)
+        if window_s != AssimilationConfig.window_s:
+            print(f"note: windows of {window_s:.0f} s, {WINDOW_MIN_SAMPLES} samples of the most sparsely logged run "
+                  f"(--window sets another length)")
+    config = AssimilationConfig(window_s=window_s, mode=args.mode or AssimilationConfig.mode,
                                 batch_fraction=args.batch, iters=args.iters, seed=args.seed,
                                 memory=MEMORIES[args.memory](), window_start=args.window_start,
                                 start_prior_sigmas=args.start_prior_sigmas, gradient=gradient, integrator=integrator,
                                 train_mechanisms=tuple(args.train_mechanisms),
                                 replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
                                 replay_s=args.replay_s or AssimilationConfig.replay_s,
+                                update_budget_s=args.update_budget,
                                 wall=args.wall or AssimilationConfig.wall,
                                 carry_over=args.carry_over or AssimilationConfig.carry_over,
                                 agent_features=(_input_set(args.inputs) if args.inputs is not None
@@ -331,7 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
     a.add_argument("runs", nargs="+", help="run JSON files (several = one closure for a fleet)")
     a.add_argument("--out", required=True, help="model directory (model.json, weights.pt, checkpoint.pt)")
-    a.add_argument("--window", type=float, default=600.0, help="window length in s (default 600)")
+    a.add_argument("--window", type=float, default=None,
+                   help="window length in s (default 600, lengthened to 10 sampling intervals of a sparsely logged run)")
     a.add_argument("--mode", choices=("fixed", "growing", "replay"), default=None,
                    help="window mode: the newest window only (fixed), all data so far (growing), or the newest "
                         "window plus a bounded replay sample of the earlier data (replay); default: "
@@ -346,6 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "unless it cannot integrate the window (integrable, the paper's); default: AssimilationConfig's")
     a.add_argument("--replay-segments", type=int, default=None, help="--mode replay: earlier segments per update")
     a.add_argument("--replay-s", type=float, default=None, help="--mode replay: length of each segment in s")
+    a.add_argument("--update-budget", type=float, default=None, metavar="SECONDS",
+                   help="wall-clock budget of one window's update; once spent it keeps the best weights it "
+                        "evaluated; default: half the window's length (real time); inf: no budget (results that "
+                        "do not depend on the machine's speed)")
     a.add_argument("--batch", type=float, default=1.0, help="fraction of observation times per gradient, (0, 1]")
     a.add_argument("--iters", type=int, default=20, help="L-BFGS iterations per window (default 20)")
     a.add_argument("--seed", type=int, default=0, help="weight initialisation and batch seed")

@@ -30,6 +30,13 @@ def _states_seen(runs) -> tuple[list[float], list[float], list[float]]:
     return p, T_v, T_l
 
 
+def sampling_interval_s(run) -> float:
+    """A run's typical sampling interval (s): the median spacing of the times at which any channel
+    was measured (0 for a run with fewer than two such times)."""
+    t = run.observations.t_s[np.isfinite(run.observations.values).any(axis=1)]
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
 @dataclass(frozen=True)
 class Fleet:
     """Runs of one fluid integrated together as environments of a batched ODE.
@@ -98,13 +105,8 @@ class Fleet:
         return t0.pop()
 
     def sampling_intervals_s(self) -> np.ndarray:
-        """Each run's typical sampling interval ``(env,)`` (s): the median spacing of the times at
-        which any channel was measured (0 for a run with fewer than two such times)."""
-        out = []
-        for r in self.runs:
-            t = r.observations.t_s[np.isfinite(r.observations.values).any(axis=1)]
-            out.append(float(np.median(np.diff(t))) if len(t) > 1 else 0.0)
-        return np.array(out)
+        """Each run's typical sampling interval ``(env,)`` (s): ``sampling_interval_s`` of each run."""
+        return np.array([sampling_interval_s(r) for r in self.runs])
 
     def initial_state(self, mechanisms=()) -> Tensor:
         """State ``(env, 7)`` from each run's initial (p_v, T_v, T_l, T_w, fill ratio), via CoolProp.

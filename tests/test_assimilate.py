@@ -21,7 +21,7 @@ from tankode.schedule import Schedule
 from tankode.simulation import simulate
 from tankode.solver import Backprop, NoGradient
 from tankode.synthetic import solution_to_runs
-from trainers.assimilate import AssimilationConfig, Assimilator, window_edges
+from trainers.assimilate import AssimilationConfig, Assimilator, window_edges, window_for
 from trainers.cost import Window, cost, cost_terms
 from trainers.evaluate import closure_inputs_along
 
@@ -148,7 +148,8 @@ def _cli_here(capsys, *args):
 def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path, capsys):
     data = _data(_short_run(240.0))
     json_path, _ = write_run(data, tmp_path / "data")
-    args = [str(json_path), "--window", "60", "--iters", "3", "--batch", "0.5", "--quiet"]
+    # (--update-budget inf: weights that do not depend on how fast each run happened to be)
+    args = [str(json_path), "--window", "60", "--iters", "3", "--batch", "0.5", "--update-budget", "inf", "--quiet"]
     ref = _cli("assimilate", *args, "--out", str(tmp_path / "ref"))
     out_ref, _ = ref.communicate(timeout=600)
     assert ref.returncode == 0, out_ref.decode()
@@ -279,7 +280,8 @@ def test_laplace_memory_survives_an_interruption(tmp_path, window_start):
     from trainers.memory import LaplaceMemory
 
     data = _data(_short_run(180.0), noise="high", seed=3)
-    cfg = AssimilationConfig.paper(window_s=60.0, iters=2, memory=LaplaceMemory(), window_start=window_start)
+    cfg = AssimilationConfig.paper(window_s=60.0, iters=2, memory=LaplaceMemory(), window_start=window_start,
+                                   update_budget_s=math.inf)  # the same weights however fast each run is
     whole = Assimilator([data], cfg, closure=MLPClosure(MLPConfig(seed=1))).run()
     assert bool(whole.reports[-1].start_offset_sigmas) == (window_start == "joint")
 
@@ -526,13 +528,17 @@ def test_replayed_segments_span_three_samples_of_the_sparsest_run():
     a.run()
     sample = a._replay(4)
     assert sample and all(len(parts[0][0]) > 0 for _, _, parts in sample)
+    # Left to the data, a window holds ten sampling intervals of the sparsest run (whole minutes).
+    assert window_for([dense]) == 600.0 and window_for([dense], 200.0) == 200.0
+    assert window_for([dense, sparse]) == 1200.0 and window_for([sparse], 1800.0) == 1800.0
 
 
 def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exactly(tmp_path):
     """mode="replay": each update replays at most ``replay_segments`` earlier segments, all within
     the data seen so far, drawn alike for the same seed; a run interrupted after window 2 and resumed from its checkpoint ends with the same weights."""
     data = _data(_short_run(240.0))
-    config = AssimilationConfig(window_s=60.0, iters=2, replay_segments=2, replay_s=40.0, seed=3)
+    config = AssimilationConfig(window_s=60.0, iters=2, replay_segments=2, replay_s=40.0, seed=3,
+                                update_budget_s=math.inf)  # the same weights however fast each run is
     a = Assimilator([data], config)
     reports = a.run().reports
     assert len(reports) == 4
@@ -688,3 +694,30 @@ def test_an_unseen_fill_is_forecast_by_the_base_not_by_what_the_drain_taught(tmp
     h = hold_out(run, AssimilationConfig(), split=0.7)
     assert h.held_out["p_v_Pa"] < 8.0, h.held_out
     assert h.cost_windows < 3.0 * h.floor
+
+
+def test_a_spent_update_budget_keeps_the_best_weights_evaluated():
+    """With no time at all, each update evaluates its start only and keeps it: the weights do not
+    move, the note says why; without a budget the same update moves them."""
+    from tankode.closures import MLPClosure
+
+    data = _data(_short_run(120.0))
+    config = AssimilationConfig.paper(window_s=60.0, iters=3, update_budget_s=1e-9)
+    agent = MLPClosure(MLPConfig(seed=0))
+    start = [p.detach().clone() for p in agent.parameters()]
+    result = Assimilator([data], config, closure=agent).run()
+    # (BoundedLBFGS rounds the weights to its latent map once: a few ulps)
+    assert all(torch.allclose(p, q, rtol=0, atol=1e-14) for p, q in zip(result.closure.parameters(), start))
+    assert all("update budget of 1e-09 s spent" in r.note and r.n_evals == 1 for r in result.reports)
+    free = Assimilator([data], dataclasses.replace(config, update_budget_s=math.inf),
+                       closure=MLPClosure(MLPConfig(seed=0))).run()
+    assert not all(torch.allclose(p, q, rtol=0, atol=1e-6) for p, q in zip(free.closure.parameters(), start))
+    assert "budget" not in "".join(r.note for r in free.reports)
+    # By default an update may search for half its window (real time); the budget round-trips.
+    assert AssimilationConfig(window_s=600.0).budget_s == 300.0
+    for budget in (None, 150.0, math.inf):
+        cfg = AssimilationConfig(update_budget_s=budget)
+        assert AssimilationConfig.from_json(cfg.to_json()) == cfg
+    for bad in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError, match="update_budget_s"):
+            AssimilationConfig(update_budget_s=bad)

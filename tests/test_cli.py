@@ -169,7 +169,8 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     assert (seen["config"].window_start, seen["config"].start_prior_sigmas) == ("joint", 3.0)
     # The defaults are the configuration's: Rosenbrock, whose gradient is Backprop (it has no adjoint)
     assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("rosenbrock", "Backprop")
-    assert seen["config"] == AssimilationConfig(mode="fixed", window_start="joint", start_prior_sigmas=3.0)
+    # ...but the window: the run is sampled every 600 s, so a window holds ten samples (6000 s)
+    assert seen["config"] == AssimilationConfig(window_s=6000.0, mode="fixed", window_start="joint", start_prior_sigmas=3.0)
     assert main([*args, "--gradient", "checkpointed"]) == 2  # the stand-in stops the command
     assert type(seen["config"].gradient).__name__ == "Checkpointed"
     # dopri5's default gradient is the adjoint

@@ -8,7 +8,7 @@ import pytest
 import torch
 from scipy.optimize import minimize
 
-from trainers.lbfgs import Box, BoundedLBFGS, MiniBatch, OverlapBatches, ResetHistory, StepResult, uniform_box
+from trainers.lbfgs import Box, BoundedLBFGS, MiniBatch, OverlapBatches, ResetHistory, StepResult, StopStep, uniform_box
 from trainers.lbfgs import _Fold
 
 F64 = torch.float64
@@ -475,3 +475,42 @@ def test_rejected_trial_points_make_the_line_search_backtrack():
     with pytest.raises(Infeasible):
         opt.step(closure)
     assert float(w.detach()) == 0.0
+
+
+def test_a_closure_ends_the_step_at_the_best_point_it_evaluated():
+    """StopStep (a spent time budget) ends the step at the lowest loss evaluated, with its gradient,
+    the history cleared; at the first evaluation it propagates and the step is undone."""
+    w = torch.tensor([0.0, 0.0], dtype=F64, requires_grad=True)
+    seen = []
+
+    def closure():
+        if len(seen) == 6:
+            raise StopStep("budget")
+        loss = (w[0] - 3.0) ** 2 + 10.0 * (w[1] - w[0] ** 2) ** 2  # a curved valley: needs many calls
+        seen.append((float(loss.detach()), w.detach().clone()))
+        return loss
+
+    opt = BoundedLBFGS({"w": w}, {"w": Box(-10.0, 10.0)}, max_iter=50)
+    res = opt.step(closure)
+    best_loss, best_w = min(seen, key=lambda e: e[0])
+    assert res.stopped and res.n_evals == 6 and res.n_pairs == 0
+    assert res.loss_after == best_loss < res.loss_before == seen[0][0]
+    assert torch.equal(w.detach(), best_w)
+    w_grad = 2 * (best_w[0] - 3.0) - 40.0 * best_w[0] * (best_w[1] - best_w[0] ** 2)
+    assert res.grad_norm == pytest.approx(max(abs(float(w_grad)), abs(20.0 * float(best_w[1] - best_w[0] ** 2))),
+                                          rel=1e-9)
+    # The optimiser goes on from there.
+    seen.clear()
+    seen.append(None)  # never six again
+    res = opt.step(lambda: (w[0] - 3.0) ** 2 + 10.0 * (w[1] - w[0] ** 2) ** 2)
+    assert not res.stopped and res.loss_after < best_loss
+
+    x = torch.tensor([0.5], dtype=F64, requires_grad=True)
+    opt = BoundedLBFGS({"x": x}, {"x": Box(0.0, 1.0)}, max_iter=5)
+
+    def at_once():
+        raise StopStep("budget")
+
+    with pytest.raises(StopStep):
+        opt.step(at_once)
+    assert x.item() == pytest.approx(0.5, abs=1e-12)

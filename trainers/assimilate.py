@@ -53,7 +53,7 @@ from torch import Tensor
 
 from tankode.closures import FEATURE_NAMES, OPERATION_FEATURES, THETA_NAMES, MLPClosure, MLPConfig
 from tankode.errors import SimulationError
-from tankode.fleet import Fleet
+from tankode.fleet import Fleet, sampling_interval_s
 from tankode.integrate import integrate, state_scale
 from tankode.mechanisms import make_mechanism
 from tankode.model import TankModel
@@ -65,7 +65,7 @@ from .checkpoint import save_checkpoint
 from .cost import Window, cost, cost_terms
 from .distributed import SingleProcess, group_sum
 from .evaluate import closure_inputs_along
-from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, uniform_box
+from .lbfgs import BoundedLBFGS, Box, MiniBatch, ResetHistory, StopStep, uniform_box
 from .mechanism_params import TrainedMechanisms
 from .memory import Forget, LaplaceMemory, Prior, WindowMemory, remember
 from .window_start import StartEstimate
@@ -75,6 +75,10 @@ MODES = ("fixed", "growing", "replay")
 CARRY_OVERS = ("validated", "integrable")  # AssimilationConfig.carry_over
 _GRADIENTS = {"Adjoint": Adjoint, "Backprop": Backprop, "Checkpointed": Checkpointed}
 _MEMORIES = {"Forget": Forget, "LaplaceMemory": LaplaceMemory}
+# Share of a window's length that its update's search may take by default: the other half is
+# for the closure call under way when the budget runs out and the solves after the search
+# (one or two forward solves of the window), so that the update ends before the next window.
+REAL_TIME_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -127,6 +131,16 @@ class AssimilationConfig:
         max_rhs_evals: solver budget per segment inside training; a trial agent that makes the
             ODE too stiff to integrate within it is rejected (the update keeps the last good
             weights) instead of stalling the real-time loop.
+        update_budget_s: wall-clock budget of one window's update (s), its checks and solves
+            included. Once spent, the L-BFGS search ends at the best weights it evaluated
+            (``StopStep``; the report's note says so), so that a window the agent finds hard
+            cannot hold the stream up (measured: one MHTB window's update ran past 40 minutes
+            without it). Checked between the optimiser's closure calls, each bounded by
+            ``max_rhs_evals``; with data parallelism every rank stops at the same call. None (the
+            default): ``REAL_TIME_SHARE`` (half) of ``window_s``, so that an update, with its last
+            call and the solves after the search, ends before the next window has arrived.
+            ``math.inf``: no budget, for results that do not depend on the machine's speed
+            (bit-exact resumes and comparisons).
         replay_segments: with ``mode="replay"``, the earlier segments replayed per update.
         replay_s: with ``mode="replay"``, the length of each replayed segment (s); with the
             defaults an update integrates the window plus 3 x 200 s, twice a 10-minute window.
@@ -183,6 +197,7 @@ class AssimilationConfig:
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 20_000
+    update_budget_s: float | None = None
     train_mechanisms: tuple[str, ...] = ()
     replay_segments: int = 3
     replay_s: float = 200.0
@@ -210,6 +225,8 @@ class AssimilationConfig:
             raise ValueError(f"wall_R_sheet_K_per_W must be in (0, 1e4) K/W, got {self.wall_R_sheet_K_per_W}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.update_budget_s is not None and not self.update_budget_s > 0:
+            raise ValueError(f"update_budget_s must be None, a positive number of seconds or inf, got {self.update_budget_s}")
         if self.replay_segments < 1 or not (self.replay_s > 0 and math.isfinite(self.replay_s)):
             raise ValueError(f"replay_segments must be >= 1 and replay_s a positive number of seconds, got "
                              f"{self.replay_segments} and {self.replay_s}")
@@ -252,6 +269,11 @@ class AssimilationConfig:
         ``seed`` (default: ``self.seed``)."""
         return MLPClosure(self._agent_config(self.seed if seed is None else seed))
 
+    @property
+    def budget_s(self) -> float:
+        """One update's wall-clock budget (s): ``update_budget_s``, or its default share of the window."""
+        return REAL_TIME_SHARE * self.window_s if self.update_budget_s is None else self.update_budget_s
+
     def solver(self):
         """The ODE solver of the training's forward pass (``integrator`` at ``rtol``/``atol``)."""
         return _INTEGRATORS[self.integrator](rtol=self.rtol, atol=self.atol, max_rhs_evals=self.max_rhs_evals)
@@ -259,18 +281,21 @@ class AssimilationConfig:
     @staticmethod
     def paper(**changes) -> "AssimilationConfig":
         """The paper's setup: fixed windows, dopri5 with the adjoint, one lumped wall, the agent
-        from constant coefficients, carried from window to window unchecked; ``changes`` override
+        from constant coefficients, carried from window to window unchecked, every update given
+        its iterations whatever they take (no time budget); ``changes`` override
         fields (e.g. ``window_s``, ``iters``). The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped",
                                           agent_base="constant", carry_over="integrable", agent_domain_margin=None,
-                                          agent_features=FEATURE_NAMES),
+                                          agent_features=FEATURE_NAMES, update_budget_s=math.inf),
                        **changes)
 
     def to_json(self) -> str:
         d = asdict(self)
         d["gradient"] = type(self.gradient).__name__
         d["memory"] = type(self.memory).__name__
-        return json.dumps(d, sort_keys=True)
+        if d["update_budget_s"] == math.inf:  # strict JSON has no infinity
+            d["update_budget_s"] = "inf"
+        return json.dumps(d, sort_keys=True, allow_nan=False)
 
     @staticmethod
     def from_json(text: str) -> "AssimilationConfig":
@@ -287,6 +312,8 @@ class AssimilationConfig:
         d.setdefault("wall_R_sheet_K_per_W", 10.0)
         d.setdefault("carry_over", "integrable")  # before the check existed
         d.setdefault("agent_domain_margin", None)  # agents extrapolated freely before the fade existed
+        budget = d.get("update_budget_s", "inf")  # "inf" as to_json writes it; unbounded before the budget existed
+        d["update_budget_s"] = None if budget is None else float(budget)
         d.setdefault("agent_features", FEATURE_NAMES)  # the paper's eight before the operations existed
         d["train_mechanisms"] = tuple(d.get("train_mechanisms", ()))  # JSON has lists; none trained before
         for key, known in (("gradient", _GRADIENTS), ("memory", _MEMORIES)):
@@ -375,6 +402,21 @@ def _mean_square_change(params, anchor) -> torch.Tensor:
     """mean over all weights of (w - w_anchor)^2."""
     total = sum(((p - a) ** 2).sum() for p, a in zip(params, anchor))
     return total / sum(a.numel() for a in anchor)
+
+
+# A window's update needs samples to learn from: a window holds at least this many sampling
+# intervals of the most sparsely logged run when its length is left to the data
+# (``window_for``). The paper's 10-minute windows of 10-s samples hold 60; the MHTB tests log
+# every 3-13 minutes, so a 10-minute window holds one sample or none.
+WINDOW_MIN_SAMPLES = 10
+
+
+def window_for(runs, window_s: float = AssimilationConfig.window_s) -> float:
+    """The window length (s) for ``runs``: ``window_s``, lengthened where needed to
+    ``WINDOW_MIN_SAMPLES`` sampling intervals of the most sparsely logged run
+    (``tankode.fleet.sampling_interval_s``), rounded up to whole minutes."""
+    sparsest = max(sampling_interval_s(r) for r in runs)
+    return max(window_s, 60.0 * math.ceil(WINDOW_MIN_SAMPLES * sparsest / 60.0 - 1e-9))
 
 
 def window_edges(t0: float, t_end: float, window_s: float) -> list[tuple[float, float]]:
@@ -584,9 +626,16 @@ class Assimilator:
         def data_cost(mask=None):
             return group_sum([lambda g=g: group_cost(g, mask) for g in range(len(windows))], shares, trained_tensors)
 
+        n_called = 0
+
         def loss(mask=None):
-            nonlocal in_backward
+            nonlocal in_backward, n_called
             in_backward = False
+            # After the first call (the optimiser needs one point); every rank decides alike.
+            over = time.perf_counter() - start > cfg.budget_s
+            if n_called > 0 and self.parallel.any(over):
+                raise StopStep(f"update budget of {cfg.budget_s:g} s spent")
+            n_called += 1
             # The environments' share of J, summed over all ranks with its gradient (self.parallel).
             J = self.parallel.data_cost(lambda: data_cost(mask), trained_tensors)
             if estimate is not None:
@@ -637,6 +686,10 @@ class Assimilator:
                 n_evals += res.n_evals
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
+                if res.stopped:
+                    note = (note + "; " if note else "") + \
+                        f"update budget of {cfg.budget_s:g} s spent: the best of {n_evals} evaluated weights kept"
+                    break
         self.trained.settle()
         offsets = []
         if estimate is not None:

@@ -80,6 +80,9 @@ Honest limits:
   the optimality measure in ``w`` (L-BFGS-B's projected gradient) for the caller to judge.
 * The optimiser reads and edits the state layout of ``torch.optim.LBFGS`` (``d``, ``t``,
   ``old_dirs``, ``old_stps``, ``ro``, ``H_diag``, ``n_iter``); ``tests/test_lbfgs.py`` pins it.
+* A closure may end a step early by raising :class:`StopStep` (e.g. a wall-clock budget spent):
+  the step then ends at the best point it evaluated, not at the line search's trial point, and
+  the curvature history is cleared (the interrupted line search left it mid-update).
 * The parameters' values are rounded once at construction to ``fold(z(w))`` (a few ulps), so that
   the module and the latent state agree bit for bit from the start.
 """
@@ -95,7 +98,7 @@ import torch
 from torch import Tensor, nn
 
 __all__ = [
-    "Box", "uniform_box", "ResetHistory", "OverlapBatches", "MiniBatch", "StepResult", "BoundedLBFGS",
+    "Box", "uniform_box", "ResetHistory", "OverlapBatches", "MiniBatch", "StepResult", "StopStep", "BoundedLBFGS",
 ]
 
 # Width of each quadratic cap of the fold, as a fraction of the box width. Measured (module
@@ -358,6 +361,11 @@ class MiniBatch:
 # ----------------------------------------------------------------------------------------------
 
 
+class StopStep(Exception):
+    """Raised by a closure to end the current :meth:`BoundedLBFGS.step` at the best point evaluated
+    so far (lowest loss); at the step's first evaluation, where there is none, it propagates."""
+
+
 @dataclass(frozen=True)
 class StepResult:
     """What one outer step did; losses are on this step's batch.
@@ -375,6 +383,7 @@ class StepResult:
         at_lower, at_upper: number of parameter entries at their lower / upper bound (within
             1e-9 of the box width).
         n_pairs: curvature pairs in the L-BFGS history after the step.
+        stopped: whether the closure ended the step early (:class:`StopStep`).
     """
 
     loss_before: float
@@ -387,6 +396,7 @@ class StepResult:
     at_lower: int
     at_upper: int
     n_pairs: int
+    stopped: bool = False
 
 
 @dataclass(frozen=True)
@@ -527,6 +537,8 @@ class BoundedLBFGS:
             FloatingPointError: the closure returned a non-finite loss.
             RuntimeError: the parameters were changed outside the optimiser, or the closure called
                 ``backward``.
+            :class:`StopStep` from the closure ends the step at its best evaluated point instead
+            (raised at the step's first evaluation, it propagates like any other exception).
             On any exception raised during the step (these, or the closure's own), the latent
             variables and the parameters are restored to the start of the step and the history is
             cleared, so the optimiser stays valid and usable (the batch generator has advanced).
@@ -541,8 +553,20 @@ class BoundedLBFGS:
                 self._batch.history._on_batch_change(self, prev, mask, closure)
             n_iter_before = self._state().get("n_iter", 0)
             self._trace = []
-            self._lbfgs.step(lambda: self._traced_evaluate(closure, mask))
+            stopped = False
+            try:
+                self._lbfgs.step(lambda: self._traced_evaluate(closure, mask))
+            except StopStep:
+                if not self._trace:
+                    raise
+                stopped = True
             trace, self._trace = self._trace, None
+            n_iters = self._state().get("n_iter", 0) - n_iter_before
+            if stopped:  # end at the best point evaluated; the interrupted line search's state is stale
+                best = min(trace, key=lambda e: e.loss)
+                with torch.no_grad():
+                    self._set_flat_z(best.z)
+                self._reset_history()
             z_end = self._flat_z()
             end = next((e for e in reversed(trace) if torch.equal(e.z, z_end)), None)
             if end is None:  # cannot happen with torch's strong Wolfe (every end point was evaluated)
@@ -569,10 +593,11 @@ class BoundedLBFGS:
         pg[(at_lo & (pg > 0)) | (at_hi & (pg < 0))] = 0.0
         return StepResult(
             loss_before=trace[0].loss, loss_after=end.loss, n_evals=self._n_evals,
-            n_iters=state.get("n_iter", 0) - n_iter_before, grad_norm=float(end.grad_z.abs().max()),
+            n_iters=n_iters, grad_norm=float(end.grad_z.abs().max()),
             proj_grad_norm=float(pg.abs().max()),
             batch_fraction=1.0 if mask is None else float(mask.sum()) / len(mask),
-            at_lower=int(at_lo.sum()), at_upper=int(at_hi.sum()), n_pairs=len(state.get("old_dirs", [])))
+            at_lower=int(at_lo.sum()), at_upper=int(at_hi.sum()), n_pairs=len(state.get("old_dirs", [])),
+            stopped=stopped)
 
     def state_dict(self) -> dict:
         """A snapshot (deep copy) of everything :meth:`step` depends on; tensors and plain Python only.
