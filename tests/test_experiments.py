@@ -181,4 +181,4 @@ def test_mhtb_rotations_quick(tmp_path):
         assert r["rmse"] is not None and r["rmse"]["p_v_Pa"] > 0, r
     assert sorted(summary["predict_s"]) == ["P263968K", "P263981D", "P263981T"]
     mechanisms = json.loads((tmp_path / "model" / "model.json").read_text())["mechanisms"]
-    assert [m["id"] for m in mechanisms] == ["two_node_wall"]
+    assert [m["id"] for m in mechanisms] == ["dry_wall_node"]
