@@ -676,6 +676,10 @@ class Assimilator:
             for _ in range(n_outer):
                 try:
                     res = opt.step(loss)
+                except StopStep:  # spent before a later mini-batch step's first call: that step never began
+                    note = (note + "; " if note else "") + \
+                        f"update budget of {cfg.budget_s:g} s spent: the best of {n_evals} evaluated weights kept"
+                    break
                 except (SimulationError, FloatingPointError) as err:
                     # BoundedLBFGS restored the weights of the step's start: keep them, say why.
                     note = (note + "; " if note else "") + \
