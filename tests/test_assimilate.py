@@ -721,4 +721,3 @@ def test_a_spent_update_budget_keeps_the_best_weights_evaluated():
     for bad in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError, match="update_budget_s"):
             AssimilationConfig(update_budget_s=bad)
-
