@@ -406,3 +406,19 @@ def test_refit_is_deterministic_and_fast(surrogate):
     rho = torch.tensor([70.0], dtype=F64)
     for a, b in zip(surrogate.liquid(u, rho), again.liquid(u, rho)):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=0)
+
+
+def test_the_wide_tier_holds_a_vent_to_half_a_bar_and_the_default_keeps_its_room():
+    """``covers``: the wide tier's pressure room is a share of the pressure (a run from 0.49 to
+    10.3 bar, another simulator's vent and pressurisation, fits it); a share of its 0.32-11 bar
+    range would have turned that run away. The default tier keeps its share of its range."""
+    from tankode.properties.domain import Domain, covers, wide_domain
+
+    wide, default = wide_domain("ParaHydrogen"), Domain(fluid_name="ParaHydrogen")
+    span = dict(p_Pa=[0.49e5, 10.3e5], T_v_K=[19.5, 37.8], T_l_K=[18.0])
+    assert covers(wide, **span, relative=True)
+    assert not covers(wide, **span)
+    assert not covers(wide, [0.33e5], [], [], relative=True)  # within 5 % of its lowest pressure
+    assert not covers(wide, [10.6e5], [], [], relative=True)  # within 5 % of its highest
+    assert not covers(default, [0.9e5, 2e5], [], [])          # 0.27 bar of room above 0.7 bar
+    assert covers(default, [1.0e5, 2e5], [], [])

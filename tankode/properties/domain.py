@@ -211,18 +211,25 @@ def wide_domain(fluid_name: str = "ParaHydrogen") -> Domain:
                   metastable_share=math.floor(0.7 * min(shares) * 1000.0) / 1000.0)
 
 
-def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05) -> bool:
+def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05, relative: bool = False) -> bool:
     """Whether ``domain`` holds the pressures and temperatures a run reaches, with room to spare.
 
     ``p_Pa``, ``T_v_K``, ``T_l_K``: the values seen (measured or initial), any iterables; NaN
     are ignored. The room is ``share`` of the domain's pressure range at each end, the same
     share of the vapour's temperature range below ``T_v_max_K`` and 0.5 K above ``T_l_min_K``.
+    ``relative``: the pressure room is ``share`` of the pressure at each end instead, for the
+    wide tier, whose range is 35 times the default's: a share of it (0.54 bar for ParaHydrogen)
+    would exceed the lowest pressure it holds (0.32 bar) and turn away a vent to 0.5 bar.
     """
     p = np.asarray([x for x in np.ravel(np.asarray(p_Pa, float)) if np.isfinite(x)])
     Tv = np.asarray([x for x in np.ravel(np.asarray(T_v_K, float)) if np.isfinite(x)])
     Tl = np.asarray([x for x in np.ravel(np.asarray(T_l_K, float)) if np.isfinite(x)])
-    dp = share * (domain.p_max_Pa - domain.p_min_Pa)
-    ok = p.size == 0 or (p.min() >= domain.p_min_Pa + dp and p.max() <= domain.p_max_Pa - dp)
+    if relative:
+        lo, hi = domain.p_min_Pa * (1 + share), domain.p_max_Pa * (1 - share)
+    else:
+        dp = share * (domain.p_max_Pa - domain.p_min_Pa)
+        lo, hi = domain.p_min_Pa + dp, domain.p_max_Pa - dp
+    ok = p.size == 0 or (p.min() >= lo and p.max() <= hi)
     ok &= Tv.size == 0 or Tv.max() <= domain.T_v_max_K - share * (domain.T_v_max_K - domain.T_l_min_K)
     ok &= Tl.size == 0 or Tl.min() >= domain.T_l_min_K + 0.5
     return bool(ok)
