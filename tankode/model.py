@@ -135,6 +135,13 @@ class TankModel(nn.Module):
             edges.append(edges[-1] + len(m.states))
         self._state_slices = tuple(zip(edges[:-1], edges[1:]))
 
+    def on(self, fleet) -> "TankModel":
+        """This model's closure, mechanisms and bulk phase change on ``fleet``'s tanks (their fluid,
+        geometry and wall heat capacities): a shard of a fleet, or copies of its tanks. The
+        parameters are shared, not copied, so gradients reach this model's."""
+        return TankModel(fleet.fluid, fleet.geometry, self.closure, fleet.wall_heat_capacity_J_per_K,
+                         self.mechanisms, bulk=self.bulk)
+
     @property
     def n_state(self) -> int:
         """Length of the state vector: 7 plus the mechanisms' own states."""

@@ -568,7 +568,6 @@ def test_replay_windows_draw_a_bounded_seeded_sample_of_the_past_and_resume_exac
     assert torch.equal(resumed.closure.seen_lo, box[0]) and torch.equal(resumed.closure.seen_hi, box[1])
 
 
-
 def test_replayed_segments_integrated_as_one_batch_match_each_integrated_alone():
     """The replay sample is integrated as one batched ODE on each segment's own clock (the copies
     restart at every copy's input change: here sloshing starts at 60 s, inside some segments);
@@ -588,6 +587,7 @@ def test_replayed_segments_integrated_as_one_batch_match_each_integrated_alone()
     for x, y in zip(together, alone):
         assert x.shape == y.shape
         assert ((a.model.observe(x) - a.model.observe(y)).abs() / sigma).max() < 1e-3
+
 
 def _window_inputs(a, k=0):
     t0, t1 = a.windows[k]

@@ -589,13 +589,9 @@ class Assimilator:
         model, fleet = self._group_model(g)
         idx = self.cost_groups[g]
         n, R = fleet.n_env, len(replay)
-        key = (g, R)
-        if key not in self._replay_fleets:
-            big = Fleet.from_runs(fleet.runs * R, fleet.fluid)
-            self._replay_fleets[key] = big
-        big = self._replay_fleets[key]
-        batched = TankModel(big.fluid, big.geometry, model.closure, big.wall_heat_capacity_J_per_K,
-                            model.mechanisms, bulk=model.bulk)
+        copies = self._replay_fleets.get((g, R))
+        if copies is None:
+            copies = self._replay_fleets[(g, R)] = Fleet.from_runs(fleet.runs * R, fleet.fluid)
         starts = [a for a, _, _ in replay]
         rel = [parts[g][1] - a for a, _, parts in replay]  # each segment's output times on its own clock
         tau = torch.cat(rel).unique()
@@ -610,7 +606,7 @@ class Assimilator:
             return Forcing(*(torch.cat(field) for field in zip(*parts)))
 
         s0 = torch.cat([s_a[idx] for _, s_a, _ in replay])
-        states, _ = integrate(batched, s0, list(zip(cuts[:-1], cuts[1:])), forcing, tau,
+        states, _ = integrate(model.on(copies), s0, list(zip(cuts[:-1], cuts[1:])), forcing, tau,
                               self.scale[idx].repeat(R, 1), self.solver, gradient)
         return [states[i * n:(i + 1) * n, torch.searchsorted(tau, r)] for i, r in enumerate(rel)]
 
@@ -721,18 +717,24 @@ class Assimilator:
         # (J of the newest window before and after are reported; the replayed segments only train.)
         n_evals = n_iters = 0
         grad_norm = float("nan")
+
+        def noted(line: str) -> str:
+            """The window's note with one more sentence."""
+            return f"{note}; {line}" if note else line
+
+        def spent() -> str:
+            return f"update budget of {cfg.budget_s:g} s spent: the best of {n_evals} evaluated weights kept"
+
         if self.parallel.any(len(window) > 0):  # with data parallelism: data on any rank
             for _ in range(n_outer):
                 try:
                     res = opt.step(loss)
                 except StopStep:  # spent before a later mini-batch step's first call: that step never began
-                    note = (note + "; " if note else "") + \
-                        f"update budget of {cfg.budget_s:g} s spent: the best of {n_evals} evaluated weights kept"
+                    note = noted(spent())
                     break
                 except (SimulationError, FloatingPointError) as err:
                     # BoundedLBFGS restored the weights of the step's start: keep them, say why.
-                    note = (note + "; " if note else "") + \
-                        f"step stopped, weights kept from before it: {str(err).splitlines()[0]}"
+                    note = noted(f"step stopped, weights kept from before it: {str(err).splitlines()[0]}")
                     if in_backward and isinstance(cfg.gradient, Adjoint):
                         note += ADJOINT_DIVERGED
                     break
@@ -740,8 +742,7 @@ class Assimilator:
                 n_iters += res.n_iters
                 grad_norm = res.proj_grad_norm
                 if res.stopped:
-                    note = (note + "; " if note else "") + \
-                        f"update budget of {cfg.budget_s:g} s spent: the best of {n_evals} evaluated weights kept"
+                    note = noted(spent())
                     break
         self.trained.settle()
         offsets = []

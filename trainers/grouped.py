@@ -58,9 +58,7 @@ class GroupedAssimilator(Assimilator):
                                 for s, f in zip(s0, self._fleets)], dim=0)[order]
 
     def _submodel(self, model: TankModel, g: int) -> TankModel:
-        fleet = self._fleets[g]
-        return TankModel(fleet.fluid, fleet.geometry, model.closure, fleet.wall_heat_capacity_J_per_K,
-                         model.mechanisms, bulk=model.bulk)
+        return model.on(self._fleets[g])
 
     @property
     def cost_groups(self) -> list[list[int]]:
