@@ -14,12 +14,15 @@ one batched ODE needs (``SHAPE``); seeds of other shapes are skipped.
   iterations, the Rosenbrock integrator and back-propagation (``CONFIG``).
 * Every agent is scored on the same unseen test environments: J (``trainers/cost.py``: 0.5 per
   measured channel at the noise floor, 2.5 for the five) of its prediction of each whole test
-  run from its initial state and inputs; the score is the mean and the median over the test
-  environments. A prediction that cannot be integrated counts as failed (reported).
-* Baselines on the same test set: each draw's untrained agent (N = 0) and tankode's reference
-  correlations (the paper's laws, not the truth's).
+  run from its initial state and inputs, in the physics it was trained in (the configured
+  two-node wall with its trained sheet resistance); the score is the mean and the median over
+  the test environments. A prediction that cannot be integrated counts as failed (reported).
+* Baselines on the same test set, with the untrained model's wall: each draw's untrained agent
+  (N = 0) and tankode's reference correlations (the paper's laws, not the truth's).
 
-Usage: ``python experiments/multi_environment.py [--quick] [--out results/multi_environment]``.
+Usage: ``python experiments/multi_environment.py [--quick] [--duration S] [--n-train N ...] [--pool N]
+[--test N] [--draws N] [--out results/multi_environment]`` (the options shrink the study's scope from
+its defaults; the summary records the scope that was run).
 Writes ``summary.json``, ``table.md`` and ``heldout_loss.png``; the environments are kept under
 ``OUT/environments`` and reused by a later run with the same configuration.
 """
@@ -130,12 +133,17 @@ def environments(folder: Path, shape: str, count: int, duration_s: float, seeds=
     return [folder / f"env{s}.json" for s in found]
 
 
-def score(closure, runs) -> dict:
-    """J of the closure's prediction of each run (from its initial state and inputs); inf where it fails."""
+def score(closure, runs, mechanisms) -> dict:
+    """J of the model's prediction of each run (from its initial state and inputs); inf where it fails.
+
+    ``mechanisms``: the physics the closure was trained in (the two-node wall and its trained
+    sheet resistance): a closure learned with the dry wall at its own temperature and scored
+    with one lumped wall would be judged on physics it never saw.
+    """
     per_env = []
     for run in runs:
         try:
-            per_env.append(float(validation_cost(closure, [run])["J"]))
+            per_env.append(float(validation_cost(closure, [run], mechanisms)["J"]))
         except SimulationError:
             per_env.append(math.inf)
     finite = [j for j in per_env if math.isfinite(j)]
@@ -146,29 +154,42 @@ def score(closure, runs) -> dict:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="three short environments, one window, two iterations")
+    ap.add_argument("--duration", type=float, default=DURATION_S, help="seconds of each environment")
+    ap.add_argument("--n-train", type=int, nargs="+", default=list(N_TRAIN), help="fleet sizes trained on")
+    ap.add_argument("--pool", type=int, default=N_POOL, help="training pool size (>= the largest N)")
+    ap.add_argument("--test", type=int, default=N_TEST, help="unseen test environments")
+    ap.add_argument("--draws", type=int, default=DRAWS, help="draws of pool order and initial weights")
     ap.add_argument("--out", default="results/multi_environment")
     args = ap.parse_args(argv)
+    if not args.quick and (max(args.n_train) > args.pool or min(args.n_train) < 1 or args.test < 1
+                           or args.draws < 1 or args.duration <= 0):
+        ap.error(f"need 1 <= N <= --pool ({args.pool}), --test >= 1, --draws >= 1, --duration > 0; "
+                 f"got N = {args.n_train}, --test {args.test}, --draws {args.draws}, --duration {args.duration}")
     start = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     q = QUICK if args.quick else None
     shape = q["shape"] if q else SHAPE
-    duration_s = q["duration_s"] if q else DURATION_S
-    n_train, n_pool, n_test = (q["n_train"], q["n_pool"], q["n_test"]) if q else (N_TRAIN, N_POOL, N_TEST)
-    draws, config = (q["draws"], q["config"]) if q else (DRAWS, CONFIG)
-    paths = environments(out / "environments", shape, n_pool + n_test, duration_s, q["seeds"] if q else None)
+    duration_s = q["duration_s"] if q else args.duration
+    n_train = q["n_train"] if q else tuple(sorted(set(args.n_train)))
+    n_pool, n_test = (q["n_pool"], q["n_test"]) if q else (args.pool, args.test)
+    draws, config = (q["draws"], q["config"]) if q else (args.draws, CONFIG)
+    paths = environments(out / f"environments_{duration_s:.0f}s", shape, n_pool + n_test, duration_s, q["seeds"] if q else None)
     generated_s = time.perf_counter() - start
     runs = [read_run(p) for p in paths]
     pool, test = runs[:n_pool], runs[n_pool:]
     print(f"{len(runs)} environments ({shape}, {duration_s / 60:.0f} min, {LAW} law, {NOISE} noise) in "
           f"{generated_s:.0f} s; test: {[r.name for r in test]}", flush=True)
 
-    reference = score(ReferenceClosure(), test)
+    # The untrained model's physics (the configured wall, its default sheet resistance) for the
+    # baselines; each trained agent is scored with the mechanisms its training ended with.
+    initial_mechanisms = tuple(Assimilator(pool[:1], config, closure=config.agent(0)).model.mechanisms)
+    reference = score(ReferenceClosure(), test, initial_mechanisms)
     results = []
     for d in range(draws):
         order = np.random.default_rng(d).permutation(len(pool))
         init = config.agent(d)
-        untrained = score(init, test)
+        untrained = score(init, test, initial_mechanisms)
         results.append({"draw": d, "n": 0, "trained_on": [], "score": untrained, "train_s": 0.0})
         print(f"draw {d}, untrained agent: held-out J mean {untrained['mean']:.4g}, median {untrained['median']:.4g}",
               flush=True)
@@ -176,9 +197,10 @@ def main(argv=None) -> dict:
             chosen = [pool[i] for i in order[:n]]
             closure = config.agent(d)
             t = time.perf_counter()
-            res = Assimilator(chosen, config, closure=closure).run()
+            assimilator = Assimilator(chosen, config, closure=closure)
+            res = assimilator.run()
             train_s = time.perf_counter() - t
-            s = score(res.closure, test)
+            s = score(res.closure, test, tuple(assimilator.model.mechanisms))
             results.append({"draw": d, "n": n, "trained_on": [r.name for r in chosen], "score": s,
                             "train_s": train_s, "window_costs": [r.cost_after for r in res.reports],
                             "notes": [r.note for r in res.reports if r.note]})

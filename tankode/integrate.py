@@ -31,6 +31,10 @@ class _ScaledRHS(nn.Module):
         self.counter = counter
         self.max_evals = max_evals
         self._segment_evals = 0
+        # Solver state handed across input changes (tankode.rosenbrock.WarmStart): the previous
+        # segment's end in, this one's end out. Solvers without a warm start ignore both.
+        self.warm_start = None
+        self.warm_end = None
         self.names = getattr(model, "state_names", None)  # analytic test models have none
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:
@@ -138,12 +142,14 @@ def integrate(
     if float(t_eval[0]) <= t_start + 1e-9:
         outputs.append(s0[:, None, :])
     s = s0
+    warm = None
     grad_ctx = torch.enable_grad() if gradient.differentiable else torch.no_grad()
     with grad_ctx:
         for t0, t1 in segments:
             inner = t_eval[(t_eval > t0 + 1e-9) & (t_eval < t1 - 1e-9)]
             ts = torch.cat([torch.tensor([t0], dtype=torch.float64), inner, torch.tensor([t1], dtype=torch.float64)])
             func = _ScaledRHS(model, forcing(t0, s.detach()), scale, counter, solver.max_rhs_evals)
+            func.warm_start = warm
             z0 = s / scale
             try:
                 z = gradient.solve(solver, func, z0, ts, model)
@@ -160,6 +166,7 @@ def integrate(
             if bool(((t_eval - t1).abs() < 1e-9).any()):
                 outputs.append(traj[:, -1:])
             s = traj[:, -1]
+            warm = func.warm_end
     states = torch.cat(outputs, dim=1)
     if states.shape[1] != len(t_eval):
         raise AssertionError(f"internal: {states.shape[1]} outputs for {len(t_eval)} requested times")

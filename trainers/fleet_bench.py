@@ -7,7 +7,7 @@ the Rosenbrock integrator and back-propagation through its steps (the configurat
 with light walls, whose stiffness holds dopri5 to sub-second steps). Each process count runs as
 a data-parallel job (``trainers/distributed.py``; one process is a process group of one, whose
 update equals the plain ``Assimilator``'s, ``tests/test_distributed.py``) with shards cut by
-probed cost, and reports the update's wall time, its real-time factor (window length over
+their modelled cost (``trainers.distributed.ShardCost``: probed rates and input changes), and reports the update's wall time, its real-time factor (window length over
 update time) and where each rank's time went.
 
 Usage: ``python -m trainers.fleet_bench --sizes 64 1024 --processes 1 2 [--out DIR]``.
@@ -147,7 +147,7 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     from tankode.run_io import read_run
 
     from .assimilate import Assimilator
-    from .distributed import DataParallel, probe_batches, probe_costs, shard_by_cost
+    from .distributed import DataParallel, probe_batches, probe_costs, restart_rates, shard_by_cost
 
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -168,7 +168,8 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     for g in gathered:
         for i, v in g:
             rates[i] = v
-    shards = shard_by_cost(rates, world)
+    restarts = restart_rates(runs)
+    shards = shard_by_cost(rates, world, restarts=restarts)
     probe_s = time.perf_counter() - t
     parallel = DataParallel(shards, [r.name for r in runs], max(r.t_end_s for r in runs))
     local = [runs[i] for i in shards[rank]]
@@ -177,7 +178,7 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     if groups > 1:  # this rank's runs integrated in groups cut by their probed cost
         from .grouped import GroupedAssimilator
 
-        local_groups = shard_by_cost(rates[list(shards[rank])], groups)
+        local_groups = shard_by_cost(rates[list(shards[rank])], groups, restarts=restarts[list(shards[rank])])
         assim = GroupedAssimilator(local, config, local_groups, parallel=parallel)
     else:
         assim = Assimilator(local, config, parallel=parallel)
