@@ -186,12 +186,14 @@ def rosenbrock_solve_warm(func, z0: Tensor, ts: Tensor, rtol: float, atol: float
         first_step = 0.01 * d0 / d1
     h = max(first_step, 1e-9 * max(abs(t), 1.0))
     eye = torch.eye(z.shape[-1], dtype=z.dtype)
-    if warm is not None and warm.jacobian.shape == (*z.shape, z.shape[-1]):
+    if warm is None:
+        J, fresh, age = _jacobian(func, t, z, f0), True, 0
+    elif warm.jacobian.shape != (*z.shape, z.shape[-1]):
+        raise ValueError(f"warm start's Jacobian has shape {tuple(warm.jacobian.shape)}, the state {tuple(z.shape)}")
+    else:
         # A W-method keeps its order with any matrix: the last call's Jacobian serves until the
         # first rejection or _JACOBIAN_AGE steps, as it would have within one call.
         J, fresh, age = warm.jacobian, False, warm.age
-    else:
-        J, fresh, age = _jacobian(func, t, z, f0), True, 0
     while nxt < len(t_list):
         rejects = 0
         refused = None

@@ -551,11 +551,11 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost(), restarts=
         raise ValueError(f"rates must be positive and finite, got {rates.tolist()}")
     if not 1 <= n_ranks <= n:
         raise ValueError(f"cannot give each of {n_ranks} ranks a run out of {n} runs: use at most {n} ranks")
-    q = np.zeros(n) if restarts is None else np.asarray(restarts, dtype=float)
-    if q.shape != (n,) or not (np.isfinite(q).all() and (q >= 0).all()):
-        raise ValueError(f"restarts must be {n} finite rates >= 0, got {np.asarray(restarts).tolist()}")
+    restarts = np.zeros(n) if restarts is None else np.asarray(restarts, dtype=float)
+    if restarts.shape != (n,) or not (np.isfinite(restarts).all() and (restarts >= 0).all()):
+        raise ValueError(f"restarts must be {n} finite rates >= 0, got {restarts.tolist()}")
     order = np.argsort(-rates, kind="stable")
-    r, q = rates[order], q[order] * model.restart_evals
+    r, q = rates[order], restarts[order] * model.restart_evals  # q: right-hand sides per second
 
     def cuts(limit: float) -> list[int] | None:
         """Greedy blocks of cost <= limit from the stiffest run on; their starts, or None if > n_ranks."""
@@ -574,7 +574,7 @@ def shard_by_cost(rates, n_ranks: int, model: ShardCost = ShardCost(), restarts=
             i = j
         return starts
 
-    lo, hi = 0.0, (r[0] + q.sum()) * (n + model.overhead_tanks) * (1 + 1e-9)  # one shard of all: feasible
+    lo, hi = 0.0, model.of(rates, restarts) * (1 + 1e-9)  # one shard of everything is feasible
     for _ in range(200):
         if hi - lo <= 1e-12 * hi:
             break
@@ -692,6 +692,7 @@ class Launch:
     parallel: DataParallel | None = None
     rates: list = field(default_factory=list)
     restarts: list = field(default_factory=list)
+    cost_model: ShardCost = field(default_factory=ShardCost)
 
     @staticmethod
     def from_environment(config: DistributedConfig = DistributedConfig()) -> "Launch":
@@ -748,6 +749,7 @@ class Launch:
                 rates[i] = v
         self.rates = rates.tolist()
         self.restarts = restart_rates(runs).tolist()
+        self.cost_model = model
         shards = shard_by_cost(rates, self.world_size, model, self.restarts)
         self.parallel = DataParallel(shards, [r.name for r in runs], max(r.t_end_s for r in runs), config=self.config)
         return [runs[i] for i in shards[self.rank]], self.parallel
@@ -762,7 +764,7 @@ class Launch:
             mine = list(shard)
             lines.append(f"  rank {r}: {len(shard)} runs, rates {rates[mine].min():.3g}-{rates[mine].max():.3g}, "
                          f"{restarts[mine].sum() * 3600:.3g} input changes per hour, modelled cost "
-                         f"{ShardCost().of(rates[mine], restarts[mine]):.4g} ({shown})")
+                         f"{self.cost_model.of(rates[mine], restarts[mine]):.4g} ({shown})")
         return "\n".join(lines)
 
     def info(self) -> dict:

@@ -7,8 +7,9 @@ the Rosenbrock integrator and back-propagation through its steps (the configurat
 with light walls, whose stiffness holds dopri5 to sub-second steps). Each process count runs as
 a data-parallel job (``trainers/distributed.py``; one process is a process group of one, whose
 update equals the plain ``Assimilator``'s, ``tests/test_distributed.py``) with shards cut by
-their modelled cost (``trainers.distributed.ShardCost``: probed rates and input changes), and reports the update's wall time, its real-time factor (window length over
-update time) and where each rank's time went.
+their modelled cost (``trainers.distributed.ShardCost``: probed rates and input changes), and
+reports the update's wall time, its real-time factor (window length over update time) and where
+each rank's time went.
 
 Usage: ``python -m trainers.fleet_bench --sizes 64 1024 --processes 1 2 [--out DIR]``.
 """
