@@ -149,3 +149,36 @@ def test_a_failed_simulation_names_the_mechanisms_own_states():
         integrate(model, s0, fleet.segments(0.0, 60.0), fleet.forcing, t,
                   state_scale(s0, fleet.geometry.volume_m3, model.extra_state_scales), AdaptiveRK(), NoGradient())
     assert "extra_0" not in str(err.value)
+
+
+@pytest.mark.parametrize("fluid,p_Pa", [("Nitrogen", 1.3e5), ("Methane", 1.5e5)])
+def test_a_tank_of_another_fluid_simulates_on_its_own_surrogate_and_conserves_mass_and_energy(fluid, p_Pa, tmp_path):
+    """The format allows any CoolProp fluid: its run gets a surrogate on the fluid's storage tier
+    (``tankode.properties.default_domain``) and the tank's balances hold as for hydrogen: a closed
+    tank keeps its mass and gains exactly the wall's heat load, while phase change moves mass."""
+    import json
+
+    import CoolProp.CoolProp as CP
+
+    from tankode.properties import default_domain
+
+    T_sat = CP.PropsSI("T", "P", p_Pa, "Q", 0, fluid)
+    meta = {"name": "other", "fluid": fluid, "source": "crafted", "timeseries": "other.csv",
+            "tank": {"shape": "sphere", "radius_m": 0.8, "wall_heat_capacity_J_per_K": 1.0e5},
+            "initial": {"p_v_Pa": p_Pa, "T_v_K": T_sat + 4.0, "T_l_K": T_sat - 0.5, "T_w_K": T_sat + 2.0,
+                        "fill_ratio": 0.5}, "noise_std": {"p_v": 300.0}, "duration_s": 1800.0}
+    (tmp_path / "other.json").write_text(json.dumps(meta))
+    (tmp_path / "other.csv").write_text(f"t_s,p_v_Pa,Q_aw_W,slosh_amplitude_m,slosh_frequency_Hz\n0,{p_Pa},250,0,0\n"
+                                        f"900,{p_Pa},,0.005,0.6\n1800,{p_Pa},,,\n")
+    run = read_run(tmp_path / "other.json")
+    fleet = Fleet.from_runs([run])
+    assert fleet.fluid.domain == default_domain(fluid)
+    sol = simulate(fleet)
+    s, t = sol.states[0], sol.t_s
+    mass = s[:, 0] + s[:, 1]
+    assert float((mass - mass[0]).abs().max() / mass[0]) < 1e-9
+    model = TankModel(fleet.fluid, fleet.geometry, ReferenceClosure(), fleet.wall_heat_capacity_J_per_K)
+    E = model.total_energy_J(sol.states)[0]
+    scale = float(mass[0]) * 2.0e5  # total mass x a latent heat of this order
+    assert float((E - E[0] - 250.0 * t).abs().max()) / scale < 1e-6
+    assert float((s[:, 0] - s[0, 0]).abs().max()) > 1e-3 * float(s[0, 0])  # phase change happened

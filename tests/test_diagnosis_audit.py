@@ -222,7 +222,7 @@ def test_a_dynamic_estimate_outside_the_audits_interval_is_ruled_out():
     from tankode.diagnosis.audit import RunAudit
 
     def audit(hyps):
-        return RunAudit("r", (), None, Estimate(0.0, 16.0), None, Estimate(0.0, 1.0), hyps, 1.0, 0.0, (), None, (), {})
+        return RunAudit("r", (), None, Estimate(0.0, 16.0), None, Estimate(0.0, 1.0), hyps, 1.0, 0.0, (), None, 0.0, "", (), {})
 
     inv = Inventory((audit(_hyps(heat=(20.0, 2.0, 16.0))),))
     ok, why = audit_consistency("heat_leak_wall", 150.0, inv)

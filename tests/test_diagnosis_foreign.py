@@ -80,6 +80,24 @@ def test_the_audit_names_nothing_where_the_inventory_is_as_metered(nodal, scenar
     assert a.findings == (), a.summary()
 
 
+def test_the_saturation_test_rules_an_inert_gas_out_only_where_the_liquid_reads_above_saturation(nodal, tmp_path):
+    """An inert gas lowers the hydrogen's partial pressure, so the liquid under it sits below
+    T_sat(p). Helium carrying 13 % of the pressure (nodal_sim) leaves its liquid a median 0.3-0.4 K
+    below T_sat(p): not excluded; the independent simulator's self-pressurised tank, with nothing
+    hidden, keeps its liquid ~0.15 K above: excluded, so its dynamic search cannot name a gas."""
+    import independent_sim as ind
+    from tankode.diagnosis.verdict import Inventory, audit_consistency
+
+    helium = audit_run(nodal("tank_4p9m3", "mcadams", "noncondensable_mol", 200.0))
+    assert helium.liquid_superheat_K < -0.2 and helium.inert_gas_excluded == ""
+    assert audit_consistency("noncondensable_gas", 200.0, Inventory((helium,)))[0]
+    warm = audit_run(read_run(ind.simulate_run("small_selfpress", None, 0.0, seed=0, out_dir=tmp_path)))
+    assert warm.liquid_superheat_K > 0.1 and warm.inert_gas_excluded
+    ok, why = audit_consistency("noncondensable_gas", 21.0, Inventory((warm,)))
+    assert not ok and why.startswith("ruled out by the saturation test: the liquid reads a median"), why
+    assert audit_consistency("pressure_sensor_bias", -5e3, Inventory((warm,)))[0]
+
+
 def test_a_stratified_liquid_read_by_its_mass_averaged_temperature_leaves_the_inventory_as_metered(nodal):
     a = audit_run(nodal("upright_13m3", "mcadams", liquid_layers=4))
     assert a.findings == (), a.summary()

@@ -19,19 +19,10 @@ from tankode.diagnosis import diagnose
 
 NONE = [(scenario, None) for scenario in ind.SCENARIOS]
 HIDDEN = [(scenario, mechanism) for mechanism, scenario in ind.SCENARIO_FOR.items()]
-# Measured wrong names; strict, so that a fix shows up as an unexpected pass.
-KNOWN_FAILURES = {
-    ("small_selfpress", None): "names noncondensable_gas (21 mol): the other simulator's liquid superheats 0.7 K "
-                               "at rest, which tankode's model family reproduces only with a lower hydrogen "
-                               "partial pressure, and the audit cannot rule out a gas that changes no inventory",
-}
 
 
 def _case(scenario, mechanism):
-    marks = [pytest.mark.slow]
-    if (scenario, mechanism) in KNOWN_FAILURES:
-        marks.append(pytest.mark.xfail(reason=KNOWN_FAILURES[(scenario, mechanism)], strict=True))
-    return pytest.param(scenario, mechanism, marks=marks, id=f"{scenario}-{mechanism or 'none'}")
+    return pytest.param(scenario, mechanism, marks=pytest.mark.slow, id=f"{scenario}-{mechanism or 'none'}")
 
 
 @pytest.mark.parametrize("scenario,mechanism", [_case(*c) for c in HIDDEN + NONE])

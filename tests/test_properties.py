@@ -422,3 +422,22 @@ def test_the_wide_tier_holds_a_vent_to_half_a_bar_and_the_default_keeps_its_room
     assert not covers(wide, [10.6e5], [], [], relative=True)  # within 5 % of its highest
     assert not covers(default, [0.9e5, 2e5], [], [])          # 0.27 bar of room above 0.7 bar
     assert covers(default, [1.0e5, 2e5], [], [])
+
+
+@pytest.mark.parametrize("fluid_name", ["Nitrogen", "Methane"])
+def test_another_fluid_gets_a_storage_tier_and_meets_the_held_out_targets(fluid_name, cache_dir):
+    """Hydrogen's default tier carried to another fluid: the same 0.7-6 bar, its temperatures
+    scaled by the fluid's own saturation curve; the surrogate fitted there meets the targets."""
+    from tankode.properties import default_domain
+
+    d = default_domain(fluid_name)
+    assert default_domain("ParaHydrogen") == Domain()
+    assert (d.fluid_name, d.p_min_Pa, d.p_max_Pa) == (fluid_name, 0.7e5, 6.0e5)
+    T_triple = CP.PropsSI("Ttriple", fluid_name)
+    T_sat = [CP.PropsSI("T", "P", p, "Q", 0, fluid_name) for p in (d.p_min_Pa, d.p_max_Pa)]
+    assert T_triple < d.T_l_min_K < T_sat[0] and d.T_v_max_K == pytest.approx(1.66 * T_sat[1])
+    s = load_surrogate(fluid_name)
+    assert s.domain == d
+    res = benchmark_surrogate(s, n_points=1000, seed=7, timing=False)
+    for phase in ("vapor", "liquid"):
+        assert all(res["phases"][phase]["meets_targets"].values()), (phase, res["phases"][phase]["max_rel_err"])

@@ -38,7 +38,11 @@ Detection*, 2000). Per run:
    saturation at its pressure, nor a liquid warmer. A violation beyond the noise at
    ``consistency_share`` or more of the audit times is evidence of an inert gas (its partial
    pressure at least ``p - p_sat(T_v)``) or of a biased pressure or temperature sensor; it is
-   reported, never a reason to stop. Shorter violations (a sloshing transient) are listed.
+   reported, never a reason to stop. Shorter violations (a sloshing transient) are listed. The
+   other way round, a liquid whose median reading over the run lies ``consistency_margin_K``
+   above saturation at the measured pressure rules an inert gas out (it would lower the
+   hydrogen's partial pressure and hold the liquid below ``T_sat(p)``): the dynamic search may
+   then not name one (``RunAudit.inert_gas_excluded``).
 6. **Name what the balances show** (``InventoryFinding``) by gross-error detection: each
    single cause is a hypothesis with its own signature in the two balances: unmetered heat
    ``(0, Q t)``; a vapour leak ``-(L t, L integral h_v dt)``; a liquid leak ``-(L t, L integral
@@ -219,6 +223,11 @@ class RunAudit:
         chi2_between_phases: of the phases' heat estimates against their weighted mean.
         consistency: sentences of step 5; ``inert_partial_pressure_Pa`` its lower bound where
             the ullage reads persistently colder than saturation (None otherwise).
+        liquid_superheat_K: the median over the audit times of ``T_l - T_sat(p)`` (K): above
+            ``consistency_margin_K`` the liquid reads warmer than saturation at the measured
+            pressure on most of the run, which an inert gas contradicts (it lowers the
+            hydrogen's partial pressure and with it the liquid surface's temperature).
+        inert_gas_excluded: why the readings rule an inert gas out ("" where they do not).
         findings: what is named (step 6).
         series: ``t_s`` and the measured and metered mass (kg) and energy (J) with the measured
             ones' standard errors, for the figure.
@@ -235,6 +244,8 @@ class RunAudit:
     chi2_between_phases: float
     consistency: tuple[str, ...]
     inert_partial_pressure_Pa: float | None
+    liquid_superheat_K: float
+    inert_gas_excluded: str
     findings: tuple[InventoryFinding, ...]
     series: dict = field(repr=False)
 
@@ -256,7 +267,8 @@ class RunAudit:
             "liquid_offset_K": self.liquid_offset_K.to_json(),
             "hypotheses": {k: h.to_json() for k, h in self.hypotheses.items()}, "birge": self.birge,
             "chi2_between_phases": self.chi2_between_phases, "consistency": list(self.consistency),
-            "inert_partial_pressure_Pa": self.inert_partial_pressure_Pa,
+            "inert_partial_pressure_Pa": self.inert_partial_pressure_Pa, "liquid_superheat_K": self.liquid_superheat_K,
+            "inert_gas_excluded": self.inert_gas_excluded,
             "findings": [f.to_json() for f in self.findings],
         }
 
@@ -624,6 +636,11 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     v = np.array([e.value for e in per])
     chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
     consistency, inert = _consistency(thermo, cons, config)
+    superheat = float(np.median([r[3] - r[4] for r in cons]))
+    excluded = ""
+    if superheat > config.consistency_margin_K:
+        excluded = (f"the liquid reads a median {superheat:.2f} K warmer than saturation at the measured pressure; an "
+                    "inert gas would hold it below (it lowers the hydrogen's partial pressure)")
     findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level)
     # The nuisances as the explanation the findings rest on estimates them.
     s = sols[chosen] if chosen in sols else general
@@ -637,7 +654,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
             "colder than the bulk)"))
     series = _series(figs)
     return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
-                    tuple(s for s, _ in consistency), inert, tuple(findings), series)
+                    tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(findings), series)
 
 
 def _energy_only(d: _PhaseData) -> _PhaseData:

@@ -31,7 +31,10 @@ more conditions:
 
 An ullage that reads persistently colder than saturation is evidence of an inert gas or a
 biased sensor: where the dynamic search does not name one of the two, the verdict names the
-measured partial-pressure bound with both candidates.
+measured partial-pressure bound with both candidates. A liquid that reads warmer than
+saturation over most of the run rules an inert gas out: the gas would lower the hydrogen's
+partial pressure and with it the liquid's temperature, so a model that needs one there is
+compensating something else (another simulator's liquid that superheats at rest, for one).
 """
 
 from __future__ import annotations
@@ -163,8 +166,14 @@ def inventory(audits: list[RunAudit]) -> Inventory:
 def audit_consistency(mechanism: str, value: float, inv: Inventory) -> tuple[bool, str]:
     """Whether a dynamic estimate of an inventory mechanism is within what the audit measured.
 
-    Returns ``(consistent, reason)``; mechanisms the audit does not measure are consistent.
+    Returns ``(consistent, reason)``; mechanisms the audit does not measure are consistent, except
+    an inert gas where a run's liquid reads warmer than saturation at the measured pressure on
+    most of the run (``RunAudit.inert_gas_excluded``).
     """
+    if mechanism == "noncondensable_gas":
+        why = [f"{a.run}: {a.inert_gas_excluded}" if len(inv.audits) > 1 else a.inert_gas_excluded
+               for a in inv.audits if a.inert_gas_excluded]
+        return (False, "ruled out by the saturation test: " + "; ".join(why)) if why else (True, "")
     hyp = AUDIT_HYPOTHESIS.get(mechanism)
     if hyp is None:
         return True, ""

@@ -22,7 +22,7 @@ import CoolProp
 import torch
 
 from .config import SurrogateConfig
-from .domain import Domain, covers, wide_domain
+from .domain import Domain, covers, default_domain, wide_domain
 from .fit import FORMAT_VERSION, fit_surrogate
 from .model import Surrogate
 
@@ -74,16 +74,20 @@ def read_surrogate(path: Path | str) -> Surrogate:
         ) from err
 
 
-def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
+def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain | None = None,
                    config: SurrogateConfig = SurrogateConfig()) -> Surrogate:
     """The surrogate for (fluid, domain, config): memoised in-process, cached on disk, else fitted.
+
+    ``domain`` None is the fluid's default tier (``default_domain``).
 
     Same arguments (and cache directory) return the same object within a process. A missing
     cache file triggers ``fit_surrogate`` (~1-2 s) and writes the file (a warning if the directory
     is not writable); an unreadable one raises ``RuntimeError`` naming it (no silent refit over a
     file someone may be inspecting).
     """
-    if domain.fluid_name != fluid_name:
+    if domain is None:
+        domain = default_domain(fluid_name)
+    elif domain.fluid_name != fluid_name:
         domain = replace(domain, fluid_name=fluid_name)
     path = cache_path(fluid_name, domain, config)
     key = (fluid_name, domain, config, str(path))
@@ -124,7 +128,7 @@ def surrogate_covering(fluid_name: str, p_Pa=(), T_v_K=(), T_l_K=()) -> Surrogat
     Raises:
         ValueError: the states lie beyond even the wide domain (naming the range it spans).
     """
-    tiers = ((Domain(fluid_name=fluid_name), SurrogateConfig(), False), (wide_domain(fluid_name), WIDE_CONFIG, True))
+    tiers = ((default_domain(fluid_name), SurrogateConfig(), False), (wide_domain(fluid_name), WIDE_CONFIG, True))
     for domain, config, relative in tiers:
         if covers(domain, p_Pa, T_v_K, T_l_K, relative=relative):
             return load_surrogate(fluid_name, domain, config)

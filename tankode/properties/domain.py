@@ -184,6 +184,39 @@ class Domain:
 
 
 
+# Hydrogen's default fields above, carried to other fluids (``default_domain``): the same storage
+# pressures, the vapour up to this multiple of T_sat(p_max) (hydrogen: 50 K over 30.1 K) and the
+# liquid down to this share of the way from the triple point to T_sat(p_min) (hydrogen: 17 K).
+_T_V_MAX_OF_T_SAT = 1.66
+_T_L_MIN_SHARE = 0.6
+_HYDROGENS = ("ParaHydrogen", "Hydrogen", "OrthoHydrogen")
+
+
+def default_domain(fluid_name: str = "ParaHydrogen") -> Domain:
+    """The default (first) tier for ``fluid_name``: storage tanks' pressures and temperatures.
+
+    Hydrogen (para, normal, ortho) gets ``Domain``'s defaults. Another fluid (nitrogen, methane,
+    oxygen, ...) gets the same pressures, 0.7 to 6 bar, kept within 2 times its triple-point and
+    half its critical pressure, the vapour up to 1.66 ``T_sat(p_max)`` and the liquid down to 60 %
+    of the way from its triple point to ``T_sat(p_min)`` (hydrogen's fields in those terms), with
+    the metastable margin of 1.8 K or less where its single-phase branches end sooner.
+    """
+    if fluid_name in _HYDROGENS:
+        return Domain(fluid_name=fluid_name)
+    lim = _fluid_limits(fluid_name)
+    p_min = max(Domain.p_min_Pa, 2.0 * lim["p_triple"])
+    p_max = min(Domain.p_max_Pa, 0.5 * lim["p_crit"])
+    if not p_min < p_max:
+        raise ValueError(f"{fluid_name}: no storage pressures between 2 times its triple-point pressure "
+                         f"({2.0 * lim['p_triple']:.4g} Pa) and half its critical pressure ({0.5 * lim['p_crit']:.4g} Pa)")
+    T_sat_lo, T_sat_hi = _T_sat(fluid_name, float(p_min)), _T_sat(fluid_name, float(p_max))
+    margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min)),
+                 _max_metastable_K(fluid_name, float(p_max)))
+    return Domain(p_min_Pa=p_min, p_max_Pa=p_max, T_v_max_K=min(_T_V_MAX_OF_T_SAT * T_sat_hi, lim["T_max"]),
+                  T_l_min_K=lim["T_triple"] + _T_L_MIN_SHARE * (T_sat_lo - lim["T_triple"]),
+                  metastable_K=math.floor(margin * 100.0) / 100.0, fluid_name=fluid_name)
+
+
 # The wide tier, as fractions of the fluid's critical point: ParaHydrogen 0.32 to 11.1 bar and
 # vapour up to 82 K, beyond the pressures of any storage tank's relief setting and below the
 # critical region, where the liquid's metastable branch (and so the margin) shrinks to nothing.
@@ -235,4 +268,4 @@ def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05, relative: bo
     return bool(ok)
 
 
-__all__ = ["Domain", "wide_domain", "covers"]
+__all__ = ["Domain", "default_domain", "wide_domain", "covers"]

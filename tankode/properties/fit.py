@@ -26,7 +26,7 @@ import torch
 
 from .config import SurrogateConfig
 from .coolprop import CoolPropFluid
-from .domain import Domain
+from .domain import Domain, default_domain
 from .model import RBF_OUTPUTS, Surrogate, PhaseFit, evaluate_phase
 from .peng_robinson import PengRobinson, TaylorTemperature
 from .rbf import SHAPE_FREE_KERNELS, fit_rbf
@@ -159,13 +159,14 @@ def _fit_phase(fluid, domain, config, phase, pr, sat) -> tuple[PhaseFit, dict]:
     return m, record
 
 
-def fit_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
+def fit_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain | None = None,
                   config: SurrogateConfig = SurrogateConfig()) -> Surrogate:
     """Fit a ``Surrogate`` of ``fluid_name`` over ``domain`` (takes a few seconds; see ``load_surrogate``).
 
     Args:
         fluid_name: CoolProp fluid name.
-        domain: fitted (p, T) region; re-validated against ``fluid_name`` if it names another fluid.
+        domain: fitted (p, T) region (None: the fluid's ``default_domain``); re-validated against
+            ``fluid_name`` if it names another fluid.
         config: sample sizes and kernel selection.
 
     Returns:
@@ -179,7 +180,7 @@ def fit_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain = Domain(),
     Runs with one torch thread (restored afterwards); ~1-2 s on a 2-core machine.
     """
     with single_threaded():
-        return _fit(fluid_name, domain, config)
+        return _fit(fluid_name, default_domain(fluid_name) if domain is None else domain, config)
 
 
 def _fit(fluid_name: str, domain: Domain, config: SurrogateConfig) -> Surrogate:

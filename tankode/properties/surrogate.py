@@ -8,9 +8,9 @@ min-max scaled (u, rho), one per phase).
 
 from .cache import WIDE_CONFIG, load_surrogate, surrogate_covering
 from .config import SurrogateConfig
-from .domain import Domain, wide_domain
+from .domain import Domain, default_domain, wide_domain
 from .fit import fit_surrogate
 from .model import PhaseProps, Surrogate
 
 __all__ = ["WIDE_CONFIG", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate", "surrogate_covering",
-           "wide_domain"]
+           "default_domain", "wide_domain"]
