@@ -84,6 +84,27 @@ class Fleet:
         )
         return Fleet(runs, geometry, walls, surrogate, CoolPropFluid(fluid_name))
 
+    def on_wide_tier(self, state: Tensor | None = None) -> "Fleet | None":
+        """The same runs on the fluid's wide property tier (``tankode.properties.wide_domain``).
+
+        For a trajectory that leaves the default tier, which the runs' measured states (what
+        ``from_runs`` picks the tier by) do not foresee. None where the fleet is on the wide tier
+        already, or where it would not hold ``state`` either (``(..., 7+)`` tank states, e.g. a
+        ``StateLeftDomain``'s: an ullage read colder than saturation leaves both tiers alike).
+        """
+        from .properties import WIDE_CONFIG, load_surrogate, wide_domain
+
+        wide = wide_domain(self.fluid.fluid_name)
+        if self.fluid.domain == wide:
+            return None
+        surrogate = load_surrogate(self.fluid.fluid_name, wide, WIDE_CONFIG)
+        if state is not None:
+            s = state.detach().reshape(-1, state.shape[-1])
+            if not (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
+                    and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
+                return None
+        return Fleet.from_runs(self.runs, surrogate)
+
     @property
     def n_env(self) -> int:
         return len(self.runs)

@@ -14,7 +14,6 @@ from .errors import ImpossibleState, SimulationError, StateLeftDomain
 from .fleet import Fleet
 from .integrate import IntegrationStats, integrate, state_scale
 from .model import TankModel
-from .properties import WIDE_CONFIG, load_surrogate, wide_domain
 from .run import OBS_CHANNELS as OBS_NAMES
 from .solver import LSODA, AdaptiveRK, NoGradient
 from .threads import single_threaded
@@ -110,12 +109,12 @@ def simulate(
     except StateLeftDomain as err:
         # A run that leaves the default domain gets the wide one (the trajectory is not known
         # before it is simulated); one given a surrogate, or already on the wide one, does not.
-        wide = wide_domain(fleet.fluid.fluid_name)
-        if surrogate is not None or isinstance(runs, Fleet) or fleet.fluid.domain == wide:
+        wide = None if surrogate is not None or isinstance(runs, Fleet) else fleet.on_wide_tier(err.state)
+        if wide is None:
             raise
-        fleet = Fleet.from_runs(runs, load_surrogate(fleet.fluid.fluid_name, wide, WIDE_CONFIG))
+        fleet, d = wide, wide.fluid.domain
         notes = (f"the trajectory left the default property domain at t = {err.t_s:.6g} s; simulated on the wide "
-                 f"one ({wide.p_min_Pa:.4g} to {wide.p_max_Pa:.4g} Pa)",)
+                 f"one ({d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa)",)
         states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
     notes += tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(fleet.runs, fleet.walls) if w.assumed)
     return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))

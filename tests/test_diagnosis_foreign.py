@@ -131,6 +131,35 @@ def test_forty_minutes_of_another_simulators_tank_with_nothing_hidden_name_nothi
     assert f"![inventory_{run.name}.png](inventory_{run.name}.png)" in md
 
 
+def test_a_model_that_leaves_the_default_tier_is_searched_again_on_the_wide_one_and_a_failure_leaves_the_audit(
+        nodal, monkeypatch):
+    """The runs' measured states pick the property tier; the model's trajectory may leave it (an
+    overshooting baseline, a score test's perturbation). The dynamic search then runs again on the
+    wide tier; any other simulation failure ends it and the audit's verdict stands, never a traceback."""
+    import importlib
+
+    from tankode.errors import SimulationError, StateLeftDomain
+    from tankode.properties import wide_domain
+
+    run = nodal("tank_4p9m3", "mcadams", "vapor_leak_kg_s", 5e-4, duration_s=1200.0)
+    tiers = []
+
+    def failing(problem, *args):
+        tiers.append(problem.fleet.fluid.domain)
+        if len(tiers) == 1:  # inside the wide tier: the start itself
+            raise StateLeftDomain("left the default tier", 600.0, problem.fleet.initial_state(()))
+        raise SimulationError("the solver stalled", 1200.0)
+
+    monkeypatch.setattr(importlib.import_module("tankode.diagnosis.diagnose"), "score_tests", failing)
+    d = diagnose([run])
+    assert tiers[0] != tiers[1] == wide_domain(run.fluid)
+    assert d.dynamic_notes[0].startswith("the model left the default property domain (left the default tier at t = 600")
+    assert d.dynamic_notes[1].startswith("the dynamic search stopped: the solver stalled at t = 1200 s")
+    v = d.verdict
+    assert (v.kind, v.name, v.source) == ("cause", "vapor_leak", "inventory audit"), v.sentence
+    assert d.split == "none (the dynamic search stopped)"
+
+
 def test_an_ullage_reading_far_colder_than_saturation_is_evidence_not_a_stop(nodal, tmp_path):
     """The ullage read 4 K low from t = 0: the model cannot start there (its hydrogen would be 2 K
     past saturation), so the dynamic search stops; the diagnosis does not. It names what the

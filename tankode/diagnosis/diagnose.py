@@ -48,7 +48,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .._threads import single_threaded
-from ..errors import SimulationError
+from ..errors import SimulationError, StateLeftDomain
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS
 from .audit import AuditConfig, RunAudit, audit_run
@@ -393,8 +393,14 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
     the model with the candidate follows the data within the noise (``Thresholds.adequate``)
     and the candidate's rate agrees with the audit (``tankode.diagnosis.verdict``).
 
+    A model that leaves the default property tier on the way (its trajectory overshooting the
+    measured states, which chose the tier) is searched again on the wide tier; a simulation
+    that fails otherwise ends the dynamic search, and the audit's verdict stands, with the
+    failure in ``dynamic_notes``.
+
     Args:
-        runs: ``Run`` objects of one tank (one or several tests).
+        runs: ``Run`` objects of one tank (one or several tests), or a ``Fleet`` (its surrogate
+            is then kept).
         base_closure: the closure to calibrate (reference correlations by default, or a
             saved model's closure).
         fixed_mechanisms: mechanisms already in the model (a saved model's), kept fixed.
@@ -420,78 +426,120 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
     for line in audit_notes:
         say(f"inventory audit skipped: {line}")
     dynamic_notes: list[str] = []
+    given = isinstance(runs, Fleet)
+    fleet = runs if given else Fleet.from_runs(runs)
     with single_threaded():
-        try:
-            problem, folds, base, base_held = calibrate(runs, base_closure, fixed_mechanisms, config)
-        except SimulationError as err:
-            # An initial state the model cannot integrate (an ullage reading far colder than
-            # saturation, say) stops the dynamic search, not the diagnosis: the audit stands.
-            dynamic_notes.append(f"the dynamic search could not start: {' '.join(str(err).split())}")
-            say(dynamic_notes[-1])
-            return _audit_only(runs, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start)
-        obs = problem.obs
-        candidates = [c for c in config.candidates if c not in {m.id for m in problem.fixed}]
-        say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
-        for line in folds.failed_starts:
-            say(f"calibration start dropped: {line}")
-        base_terms = heldout_terms(obs, base_held, folds.heldout, config.block_s)
-        base_loss, base_by = loss_from_terms(*base_terms)
-        scores = sorted(score_tests(problem, base, candidates, folds.evidence_mask), key=lambda s: -s.statistic)
-        say("score test: " + ", ".join(f"{s.mechanism} {s.statistic:.3g}" for s in scores))
-        ranking = [Candidate(s.mechanism, s.statistic, i + 1) for i, s in enumerate(scores)]
-        fits: dict[str, tuple[Fit, np.ndarray]] = {}
-        for cand, sc in zip(ranking, scores):
-            why = _skip_refit(cand, sc, base, inv, config, sum(1 for c in ranking[:cand.score_rank - 1] if c.refit))
-            if why:
-                cand.reasons = [why]
-                continue
-            _refit(cand, sc, problem, folds, base, base_terms, config, fits, inv)
-            say(f"refit {cand.mechanism}: dBIC {cand.delta_bic:.1f}, held-out gain {cand.heldout_gain:.3f} "
-                f"[{cand.heldout_gain_ci[0]:.3f}, {cand.heldout_gain_ci[1]:.3f}], explains {cand.explained:.0%}, "
-                f"adequate {cand.adequate}, passes {cand.passes} "
-                f"({problem.n_simulations} simulations, {time.perf_counter() - start:.0f} s so far)")
-        _outranked(ranking, config.thresholds)
-        ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
-        verdict = decide(inv, ranking, config.thresholds)
-        say(f"verdict: {verdict.sentence}")
-        cause = verdict.name if verdict.kind == "cause" else None
-        first = next((c for c in ranking if c.mechanism == cause), None)
-        alternatives = [c.mechanism for c in ranking if c.passes and c.mechanism != cause and first is not None
-                        and c.delta_bic - first.delta_bic < config.thresholds.alternative_bic] \
-            if cause and first is not None and first.refit else []
+        while True:
+            try:
+                return _dynamic_search(fleet, base_closure, fixed_mechanisms, config, inv, audits, audit_notes,
+                                       dynamic_notes, start, say)
+            except _Stopped as stop:
+                # A model that leaves the default property tier (the runs' measured states do not
+                # foresee its trajectory: another simulator's tank overshot by the calibrated
+                # baseline, a score test's perturbation) gets the wide tier and a fresh search, as
+                # ``simulate`` does; anything else stops the dynamic search, not the diagnosis:
+                # the audit stands.
+                wide = None if given or not isinstance(stop.error, StateLeftDomain) else fleet.on_wide_tier(stop.error.state)
+                if wide is not None:
+                    fleet = wide
+                    dynamic_notes.append(f"the model left the default property domain ({str(stop.error).splitlines()[0]}); "
+                                         "the dynamic search ran again on the wide one")
+                    say(dynamic_notes[-1])
+                    continue
+                dynamic_notes.append(f"the dynamic search {stop.stage}: {' '.join(str(stop.error).split())}")
+                say(dynamic_notes[-1])
+                return _audit_only(fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes,
+                                   start, stop.stage)
 
-        extended_fit = ext_pred = extended = None
-        if cause in fits:
-            ext, _ = fits[cause]
-            all_data = np.ones_like(folds.heldout)
-            extended_fit = fit(problem, ext.params, ext.values, all_data, config.max_iterations)
-            ext_pred = _stitch(fits[cause][1], extended_fit.pred, folds.heldout)
-            c = first
-            extended = {
-                "mechanism": cause,
-                "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
-                "closure_factors": _factors(extended_fit),
-                "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
-                "residuals": residual_report(problem.sensor_obs, ext_pred, folds.heldout),
-                "fitted_on": "all data (calibration and held-out) for the saved model; held-out figures from "
-                             "the calibration-only fit",
-            }
-        elif cause in MECHANISMS and cause not in {m.id for m in problem.fixed}:
-            extended_fit, ext_pred, extended, note = _from_audit(cause, verdict, problem, folds, base, config)
-            if note:
-                dynamic_notes.append(note)
-        base_pred = _stitch(base_held, base.pred, folds.heldout)
-        baseline = {
-            "closure_factors": _factors(base), "chi2": base.chi2, "n_observations": base.n_data,
-            "heldout_loss": base_loss, "heldout_loss_by_channel": dict(zip(CHANNELS, base_by.tolist())),
-            "residuals": residual_report(problem.sensor_obs, base_pred, folds.heldout),
-            "fit_status": base.status, "failed_starts": folds.failed_starts,
-            "weighting": config.weighting.describe(),
-            "held_factors": list(config.hold),
-            "sigma": {name: {c: float(v) for c, v in zip(CHANNELS, row) if np.isfinite(v)}
-                      for name, row in zip(obs.run_names, obs.sigma)},
+
+class _Stopped(Exception):
+    """A simulation error that ended the dynamic search (``stage``: "could not start" or "stopped")."""
+
+    def __init__(self, stage: str, error: SimulationError):
+        super().__init__(stage)
+        self.stage, self.error = stage, error
+
+
+def _dynamic_search(fleet: Fleet, base_closure, fixed_mechanisms, config: DiagnosisConfig, inv: Inventory, audits,
+                    audit_notes, dynamic_notes: list, start: float, say) -> Diagnosis:
+    """Calibration, score tests, refits and the verdict on ``fleet`` (``diagnose``); ``_Stopped`` on a simulation error."""
+    try:
+        problem, folds, base, base_held = calibrate(fleet, base_closure, fixed_mechanisms, config)
+    except SimulationError as err:
+        # An initial state the model cannot integrate (an ullage reading far colder than
+        # saturation, say).
+        raise _Stopped("could not start", err) from err
+    try:
+        return _search(problem, folds, base, base_held, config, inv, audits, audit_notes, dynamic_notes, start, say)
+    except SimulationError as err:
+        raise _Stopped("stopped", err) from err
+
+
+def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConfig, inv: Inventory, audits,
+            audit_notes, dynamic_notes: list, start: float, say) -> Diagnosis:
+    obs = problem.obs
+    candidates = [c for c in config.candidates if c not in {m.id for m in problem.fixed}]
+    say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
+    for line in folds.failed_starts:
+        say(f"calibration start dropped: {line}")
+    base_terms = heldout_terms(obs, base_held, folds.heldout, config.block_s)
+    base_loss, base_by = loss_from_terms(*base_terms)
+    scores = sorted(score_tests(problem, base, candidates, folds.evidence_mask), key=lambda s: -s.statistic)
+    say("score test: " + ", ".join(f"{s.mechanism} {s.statistic:.3g}" for s in scores))
+    ranking = [Candidate(s.mechanism, s.statistic, i + 1) for i, s in enumerate(scores)]
+    fits: dict[str, tuple[Fit, np.ndarray]] = {}
+    for cand, sc in zip(ranking, scores):
+        why = _skip_refit(cand, sc, base, inv, config, sum(1 for c in ranking[:cand.score_rank - 1] if c.refit))
+        if why:
+            cand.reasons = [why]
+            continue
+        _refit(cand, sc, problem, folds, base, base_terms, config, fits, inv)
+        say(f"refit {cand.mechanism}: dBIC {cand.delta_bic:.1f}, held-out gain {cand.heldout_gain:.3f} "
+            f"[{cand.heldout_gain_ci[0]:.3f}, {cand.heldout_gain_ci[1]:.3f}], explains {cand.explained:.0%}, "
+            f"adequate {cand.adequate}, passes {cand.passes} "
+            f"({problem.n_simulations} simulations, {time.perf_counter() - start:.0f} s so far)")
+    _outranked(ranking, config.thresholds)
+    ranking.sort(key=lambda c: (not c.passes, not c.refit, c.delta_bic if c.refit else -c.score))
+    verdict = decide(inv, ranking, config.thresholds)
+    say(f"verdict: {verdict.sentence}")
+    cause = verdict.name if verdict.kind == "cause" else None
+    first = next((c for c in ranking if c.mechanism == cause), None)
+    alternatives = [c.mechanism for c in ranking if c.passes and c.mechanism != cause and first is not None
+                    and c.delta_bic - first.delta_bic < config.thresholds.alternative_bic] \
+        if cause and first is not None and first.refit else []
+
+    extended_fit = ext_pred = extended = None
+    if cause in fits:
+        ext, _ = fits[cause]
+        all_data = np.ones_like(folds.heldout)
+        extended_fit = fit(problem, ext.params, ext.values, all_data, config.max_iterations)
+        ext_pred = _stitch(fits[cause][1], extended_fit.pred, folds.heldout)
+        c = first
+        extended = {
+            "mechanism": cause,
+            "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
+            "closure_factors": _factors(extended_fit),
+            "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
+            "residuals": residual_report(problem.sensor_obs, ext_pred, folds.heldout),
+            "fitted_on": "all data (calibration and held-out) for the saved model; held-out figures from "
+                         "the calibration-only fit",
         }
-        unexplained = _unexplained((extended or baseline)["residuals"])
+    elif cause in MECHANISMS and cause not in {m.id for m in problem.fixed}:
+        extended_fit, ext_pred, extended, note = _from_audit(cause, verdict, problem, folds, base, config)
+        if note:
+            dynamic_notes.append(note)
+    base_pred = _stitch(base_held, base.pred, folds.heldout)
+    baseline = {
+        "closure_factors": _factors(base), "chi2": base.chi2, "n_observations": base.n_data,
+        "heldout_loss": base_loss, "heldout_loss_by_channel": dict(zip(CHANNELS, base_by.tolist())),
+        "residuals": residual_report(problem.sensor_obs, base_pred, folds.heldout),
+        "fit_status": base.status, "failed_starts": folds.failed_starts,
+        "weighting": config.weighting.describe(),
+        "held_factors": list(config.hold),
+        "sigma": {name: {c: float(v) for c, v in zip(CHANNELS, row) if np.isfinite(v)}
+                  for name, row in zip(obs.run_names, obs.sigma)},
+    }
+    unexplained = _unexplained((extended or baseline)["residuals"])
     return Diagnosis(
         cause, ranking, baseline, extended, folds.description, obs.run_names, unexplained,
         time.perf_counter() - start, problem.n_simulations, config.thresholds, problem, base, extended_fit,
@@ -559,13 +607,13 @@ def _from_audit(cause: str, verdict: Verdict, problem: Problem, folds, base: Fit
     return ext, pred, extended, ""
 
 
-def _audit_only(runs, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start) -> Diagnosis:
-    """A diagnosis whose dynamic search could not start: the verdict of the audit alone."""
-    fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs)
+def _audit_only(fleet: Fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start,
+                stage: str) -> Diagnosis:
+    """A diagnosis whose dynamic search could not start or stopped (``stage``): the verdict of the audit alone."""
     problem = Problem(fleet, base_closure, tuple(fixed_mechanisms))
     verdict = decide(inv, [], config.thresholds)
     cause = verdict.name if verdict.kind == "cause" else None
-    return Diagnosis(cause, [], {}, None, "none (the dynamic search could not start)", problem.obs.run_names, [],
+    return Diagnosis(cause, [], {}, None, f"none (the dynamic search {stage})", problem.obs.run_names, [],
                      time.perf_counter() - start, problem.n_simulations, config.thresholds, problem, None, None,
                      None, None, None, [], verdict, tuple(inv.audits), audit_notes, dynamic_notes)
 
