@@ -439,11 +439,12 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 # baseline, a score test's perturbation) gets the wide tier and a fresh search, as
                 # ``simulate`` does; anything else stops the dynamic search, not the diagnosis:
                 # the audit stands.
-                wide = None if given or not isinstance(stop.error, StateLeftDomain) else fleet.on_wide_tier(stop.error.state)
+                left = isinstance(stop.error, StateLeftDomain) and not given
+                wide = fleet.on_wide_tier(stop.error.state) if left else None
                 if wide is not None:
                     fleet = wide
-                    dynamic_notes.append(f"the model left the default property domain ({str(stop.error).splitlines()[0]}); "
-                                         "the dynamic search ran again on the wide one")
+                    dynamic_notes.append(f"the model left the default property domain "
+                                         f"({str(stop.error).splitlines()[0]}); the dynamic search ran again on the wide one")
                     say(dynamic_notes[-1])
                     continue
                 dynamic_notes.append(f"the dynamic search {stop.stage}: {' '.join(str(stop.error).split())}")
@@ -462,7 +463,9 @@ class _Stopped(Exception):
 
 def _dynamic_search(fleet: Fleet, base_closure, fixed_mechanisms, config: DiagnosisConfig, inv: Inventory, audits,
                     audit_notes, dynamic_notes: list, start: float, say) -> Diagnosis:
-    """Calibration, score tests, refits and the verdict on ``fleet`` (``diagnose``); ``_Stopped`` on a simulation error."""
+    """Calibration, score tests, refits and the verdict on ``fleet`` (``diagnose``).
+
+    Raises ``_Stopped`` on a simulation error, with the stage it ended."""
     try:
         problem, folds, base, base_held = calibrate(fleet, base_closure, fixed_mechanisms, config)
     except SimulationError as err:
