@@ -74,6 +74,10 @@ def test_the_audit_names_what_another_simulator_hid_in_the_inventory(nodal, scen
     # mechanisms that leave the inventory as it is: the audit must stay silent, not misname them
     ("hcyl_drain_fill", "mcadams", "pressure_sensor_bias_Pa", 8000.0),
     ("tank_4p9m3", "mcadams", "noncondensable_mol", 200.0),
+    # a liquid thermometer 0.5 K high through a fill and a drain: the heat hypothesis alone stands
+    # 8 standard errors out but explains the balances worse than the free fit, whose rates are
+    # not resolved; naming unmetered heat there was a wrong name
+    ("random_120", "slosh_energy", "temperature_sensor_bias_K", 0.5),
 ], ids=lambda v: str(v))
 def test_the_audit_names_nothing_where_the_inventory_is_as_metered(nodal, scenario, law, mechanism, value):
     a = audit_run(nodal(scenario, law, mechanism, value))

@@ -811,7 +811,10 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
         if significant and explains and not rivals:
             out.append(_single(best, note))
             chosen = best.name
-        elif significant or free_mass or free_heat:
+        elif free_mass or free_heat or (significant and explains):
+            # A single rate that is resolved only where it fails to explain the balances, while
+            # the free mass and heat are not resolved, is model or sensor error (a biased liquid
+            # thermometer shifts the inventory along a drain), not an unmetered flow: nothing.
             names = [best.name] + [h.name for h in rivals] if explains else [h.name for h in admissible]
             cands = tuple(c for nme in names for c in (_heat_candidates(heat) if nme == "heat" else (nme,)))
             listed = ", ".join(cands) or "no heat leak (heat leaves the tank)"
