@@ -29,7 +29,8 @@ Detection*, 2000). Per run:
    nuisances: a correction of the wall heat capacity (a stated ``C_w`` that is wrong shows as
    heat proportional to ``dT_w/dt``; prior ``wall_capacity_prior`` relative where the run does
    not state ``C_w``, half that where it does) and an offset of the liquid temperature sensor
-   (it shows wherever the liquid mass changes; prior ``liquid_bias_prior_K``). Where a straight
+   (it shows wherever the liquid mass changes, and in the enthalpy drains are metered at, which
+   is taken at the measured ``T_l``; prior ``liquid_bias_prior_K``). Where a straight
    line does not fit a phase within the noise (a fast transient, a state the sensors resolve
    badly), that phase's covariance is scaled by its Birge ratio ``sqrt(chi2/dof)``, and the
    joint fit's standard errors by the joint fit's own: model error widens the interval
@@ -502,7 +503,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         M_start = _inventory(thermo, V_tank, x0, run.initial.fill_ratio * V_tank, C_w, x0[3] if wall_ok else x0[2])[0]
     V_l = volumes(vals[:, 4]) if level_ok else np.array(
         [_liquid_volume_for_mass(thermo, V_tank, vals[k], M_start + metered_M[k]) for k in range(n)])
-    Ms, Es, hvs, hls = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    Ms, Es, hvs, hls, dhl = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     Jm, Je = np.zeros((n, 5)), np.zeros((n, 5))
     for k in range(n):
         x = vals[k]
@@ -515,10 +516,16 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
             xp[j] += step
             xm[j] -= step
             Vp, Vm = (volumes(np.array([xp[4], xm[4]])) if c == "H_l_m" else (V_l[k], V_l[k]))
-            Mp, Ep, _, _ = _inventory(thermo, V_tank, xp, float(Vp), C_w, xp[3] if wall_ok else xp[2])
-            Mm, Em, _, _ = _inventory(thermo, V_tank, xm, float(Vm), C_w, xm[3] if wall_ok else xm[2])
+            Mp, Ep, _, hlp = _inventory(thermo, V_tank, xp, float(Vp), C_w, xp[3] if wall_ok else xp[2])
+            Mm, Em, _, hlm = _inventory(thermo, V_tank, xm, float(Vm), C_w, xm[3] if wall_ok else xm[2])
             Jm[k, j], Je[k, j] = (Mp - Mm) / (2 * step), (Ep - Em) / (2 * step)
+            if c == "T_l_K":
+                dhl[k] = (hlp - hlm) / (2 * step)
     met = _metered(thermo, sched, knots, vals[:, 0], hvs, hls)
+    # A liquid sensor offset also shifts the enthalpy the drains are metered at (they leave at the
+    # measured T_l): its signature in the residual is the inventory's change less that of the
+    # metered energy (linear in hl, so one unit offset of hl by dh_l/dT_l gives it exactly).
+    J_Tl_E = Je[:, 2] - (_metered(thermo, sched, knots, vals[:, 0], hvs, hls + dhl)["E"] - met["E"])
     rM, rE = Ms - Ms[0] - met["M"], Es - Es[0] - met["E"]
     # Covariances of (M, E) from the channels' (independent) fit covariances.
     CM = sum(np.outer(Jm[:, j], Jm[:, j]) * covs[j] for j in range(5))
@@ -549,10 +556,10 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
            "mass": (tt, zeros)}
     if level_ok:
         C = np.block([[CM * birge_m**2, CME * birge_m * E_scale], [CME.T * birge_m * E_scale, CE * E_scale**2]])
-        data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], Je[:, 2] / _H_REF]),
+        data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], J_Tl_E / _H_REF]),
                           np.concatenate([zeros, wall]), {k: np.concatenate(v) for k, v in sig.items()})
     else:
-        data = _PhaseData(tt, None, rE, CE * E_scale**2, Je[:, 2] / _H_REF, wall, {k: v[1] for k, v in sig.items()})
+        data = _PhaseData(tt, None, rE, CE * E_scale**2, J_Tl_E / _H_REF, wall, {k: v[1] for k, v in sig.items()})
     fig = {"t_s": knots, "M": Ms, "M_std": np.sqrt(np.clip(np.diag(CM), 0, None)) if level_ok else np.full(n, np.nan),
            "E": Es, "E_std": np.sqrt(np.clip(np.diag(CE), 0, None)), "metered_M": met["M"], "metered_E": met["E"],
            "level_ok": level_ok}
