@@ -140,40 +140,27 @@ def bench_config():
 
 def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) -> None:
     """One rank of the benchmark (RANK, WORLD_SIZE, MASTER_* set): read the fleet, update window 0, write timings."""
-    from datetime import timedelta
-
     import torch
     import torch.distributed as dist
 
     from tankode.run_io import read_run
 
     from .assimilate import Assimilator
-    from .distributed import DataParallel, probe_batches, probe_costs, restart_rates, shard_by_cost
+    from .distributed import DistributedConfig, Launch, shard_by_cost
 
     torch.set_num_threads(1)
     start = time.perf_counter()
     files = sorted(Path(folder).glob("*.json"))
     runs = [read_run(f) for f in files]
     read_s = time.perf_counter() - start
-    dist.init_process_group("gloo", init_method="env://", timeout=timedelta(seconds=3600))
-    rank, world = dist.get_rank(), dist.get_world_size()
+    launch = Launch.from_environment(DistributedConfig(timeout_s=3600.0))
+    rank, world = launch.rank, launch.world_size
     config = bench_config()
-    # The probes shared out as under torchrun (trainers.distributed.Launch.shard).
+    # The probes shared out and the shards cut as under torchrun.
     t = time.perf_counter()
-    batches = probe_batches(runs)
-    mine = batches[rank::world]
-    part = probe_costs(runs, config, batches=mine)
-    gathered = [None] * world
-    dist.all_gather_object(gathered, [(i, float(part[i])) for b in mine for i in b])
-    rates = np.full(len(runs), np.nan)
-    for g in gathered:
-        for i, v in g:
-            rates[i] = v
-    restarts = restart_rates(runs)
-    shards = shard_by_cost(rates, world, restarts=restarts)
+    local, parallel = launch.shard(runs, config)
+    shards, rates, restarts = parallel.shards, np.asarray(launch.rates), np.asarray(launch.restarts)
     probe_s = time.perf_counter() - t
-    parallel = DataParallel(shards, [r.name for r in runs], max(r.t_end_s for r in runs))
-    local = [runs[i] for i in shards[rank]]
     if iters is not None:
         config = dataclasses.replace(config, iters=iters)
     if groups > 1:  # this rank's runs integrated in groups cut by their probed cost
