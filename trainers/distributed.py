@@ -775,10 +775,16 @@ class Launch:
                                   "shards": [[self.parallel.names[i] for i in s] for s in self.parallel.shards]}}
 
     def close(self) -> None:
-        """Leave the process group (after the last collective)."""
+        """Leave the process group together: a barrier (rank 0 has written its outputs), then destroy.
+
+        A rank that tore its group down while another still held connections to it was seen to
+        abort in gloo's teardown ("terminate called without an active exception") on a loaded
+        machine; leaving at one barrier keeps every rank's teardown after the last exchange.
+        """
         import torch.distributed as dist
 
         if dist.is_initialized():
+            dist.barrier()
             dist.destroy_process_group()
 
 

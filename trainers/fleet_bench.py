@@ -170,14 +170,18 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
         assim = GroupedAssimilator(local, config, local_groups, parallel=parallel)
     else:
         assim = Assimilator(local, config, parallel=parallel)
+    # Counted on the class: the grouped assimilator integrates each group with its own model
+    # (``TankModel.on``), which an instance's counter would not see.
+    from tankode.model import TankModel
+
     calls = [0]
-    forward = assim.model.forward
+    forward = TankModel.forward
 
-    def counted(t, s, f):
+    def counted(self, t, s, f):
         calls[0] += 1
-        return forward(t, s, f)
+        return forward(self, t, s, f)
 
-    assim.model.forward = counted
+    TankModel.forward = counted
     dist.barrier()
     t, cpu = time.perf_counter(), time.process_time()
     report, _, _ = assim.update(0, assim.s0)
@@ -190,7 +194,7 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
               "shards": [list(s) for s in shards], "light_local": sum("light" in r.name for r in local),
               "rates_local": rates[list(shards[rank])].tolist()}
     Path(out).write_text(json.dumps(result))
-    dist.destroy_process_group()
+    launch.close()
 
 
 def _free_port() -> int:

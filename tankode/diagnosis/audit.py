@@ -47,7 +47,18 @@ Detection*, 2000). Per run:
 6. **Name what the balances show** (``InventoryFinding``) by gross-error detection: each
    single cause is a hypothesis with its own signature in the two balances: unmetered heat
    ``(0, Q t)``; a vapour leak ``-(L t, L integral h_v dt)``; a liquid leak ``-(L t, L integral
-   h_l dt)``; an inflow meter bias ``beta x`` (metered inflow mass, its enthalpy). The best
+   h_l dt)``; an inflow meter bias ``beta x`` (metered inflow mass, its enthalpy); ``n`` mol of
+   inert gas (helium) in a vented ullage ``n (M_He - M_f) (integral f dt, integral f h_v dt)``
+   with ``f = mdot_v_out / m_v`` the ullage's vented share per second, decayed by
+   ``exp(-integral f dt)`` as the gas leaves: the sensors count each mole of helium as a mole
+   of the fluid (same p, T), a vent meters it at its own molar mass, so each mole vented
+   leaves ``M_He - M_f`` (2 g for hydrogen) more metered mass than inventory, at the ullage's
+   enthalpy (for ideal gases the energy follows exactly). It is fitted only where gas is
+   vented, with a level sensor, and where the saturation test does not rule a gas out, and is
+   admissible only positive and with a partial pressure at the start, ``n R T_v / V_v``, within
+   three standard errors of ``p - p_sat(T_l)``. The vented share is taken on the inventory's
+   mass, which counts the helium at the fluid's molar mass: the amount is low by about
+   ``1 / (1 + x (M_He / M_f - 1))`` at helium mole fraction ``x``. The best
    hypothesis is named when its rate is ``z_name`` standard errors from zero, it explains both
    balances (its chi2 within ``chi2_separation`` of the free mass-and-heat fit) and every other
    hypothesis is worse by ``chi2_separation`` or more. Unmetered heat is named with the three
@@ -64,7 +75,10 @@ of half the ullage-liquid temperature change times the heat capacity.
 Limits: each phase is treated as well mixed at its measured temperature (a stratified phase read
 by one sensor is a bias the audit sees only as the liquid offset above); rates are constant over
 the run (``chi2_between_phases`` tests the heat's constancy across phases); the hydrogen is
-pure (an inert gas is seen only through the saturation test, step 5). The audit cannot tell
+pure (an inert gas is seen through the saturation test, step 5, and the mass its vents meter,
+step 6: about 2 g per mole of helium vented, so only a tank that vents much of its helium shows
+it beyond the level's noise); a vent meter that reads high has the inert gas's signature. The
+audit cannot tell
 where unmetered heat enters: wall, liquid or ullage.
 """
 
@@ -75,6 +89,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..mechanisms.noncondensable import R_J_PER_MOLK
 from ..run import NOISE_KEYS, OBS_CHANNELS, Run
 from ..schedule import INPUT_NAMES
 
@@ -86,7 +101,9 @@ _H_REF = 1.0e5
 # Central-difference steps of the inventory's Jacobian in each channel (well below the noise,
 # well above CoolProp's round-off).
 _STEP = {"p_v_Pa": 50.0, "T_v_K": 0.01, "T_l_K": 0.005, "T_w_K": 0.01, "H_l_m": 1e-4}
-HYPOTHESES = ("heat", "vapor_leak", "liquid_leak", "inflow_meter_bias", "wall_heat_capacity_error")
+HYPOTHESES = ("heat", "vapor_leak", "liquid_leak", "inflow_meter_bias", "wall_heat_capacity_error", "noncondensable_gas")
+# kg/mol; the inert gas the audit tests for (helium, the pressurant of cryogenic tanks).
+M_INERT_KG_PER_MOL = 4.002602e-3
 HEAT_CANDIDATES = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
 
@@ -335,6 +352,7 @@ class _Thermo:
         self._gas.specify_phase(CoolProp.iphase_gas)
         self._liq = CoolProp.AbstractState("HEOS", fluid)
         self._liq.specify_phase(CoolProp.iphase_liquid)
+        self.molar_mass_kg_per_mol = self._sat.molar_mass()
 
     def T_sat(self, p: float) -> float:
         self._sat.update(self._cp.PQ_INPUTS, p, 0.0)
@@ -425,15 +443,19 @@ class _PhaseData:
     cols: dict  # hypothesis signatures [M; E / H_REF] at the knots
 
 
-def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: np.ndarray, hl_k: np.ndarray):
+def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: np.ndarray, hl_k: np.ndarray,
+             mv_k: np.ndarray | None = None, vented: float = 0.0):
     """Cumulative metered mass and energy at the knots, and the hypotheses' cumulative signatures.
 
     The schedule's pieces inside each knot interval are integrated exactly; the ullage's and the
-    liquid's enthalpies (vent, drain, leaks) and the pressure (liquid fill) are interpolated
-    linearly between the knots (trapezoid on each piece).
+    liquid's enthalpies (vent, drain, leaks), its mass ``mv_k`` (the vented share) and the
+    pressure (liquid fill) are interpolated linearly between the knots (trapezoid on each piece).
+    ``vent_M`` and ``vent_E`` integrate the vented share of the ullage per second, ``mdot_v_out /
+    m_v``, and its enthalpy flow, each decayed by ``exp(-vented share so far)``: the inert gas's
+    signature per mole (module docstring); ``vented`` is the share vented before ``knots[0]``.
     """
     n = len(knots)
-    out = {k: np.zeros(n) for k in ("M", "E", "in_M", "in_E", "Hv", "Hl", "inflow_time")}
+    out = {k: np.zeros(n) for k in ("M", "E", "in_M", "in_E", "Hv", "Hl", "inflow_time", "vent_M", "vent_E")}
     for k in range(n - 1):
         acc = dict.fromkeys(out, 0.0)
         for s0, s1, u in sched.segments(knots[k], knots[k + 1]):
@@ -454,14 +476,22 @@ def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: n
             acc["inflow_time"] += dt if m_vin + m_lin > 0 else 0.0
             acc["Hv"] += hv * dt
             acc["Hl"] += hl * dt
+            if m_vout > 0 and mv_k is not None:
+                share = m_vout * dt / ((1 - wm) * mv_k[k] + wm * mv_k[k + 1])
+                left = math.exp(-vented) * (1.0 - math.exp(-share)) / share  # mean of the decay over the piece
+                acc["vent_M"] += share * left
+                acc["vent_E"] += share * left * hv
+                vented += share
         for key in out:
             out[key][k + 1] = out[key][k] + acc[key]
+    out["vented"] = vented
     return out
 
 
 def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank: float, C_w: float,
-                 has_level: bool, has_wall: bool, M_start: float | None, config: AuditConfig):
-    """One phase: (PhaseAudit, _PhaseData, figure rows, consistency rows, the last knot's M), or None."""
+                 has_level: bool, has_wall: bool, M_start: float | None, vented: float, config: AuditConfig):
+    """One phase: (PhaseAudit, _PhaseData, figure rows, consistency rows, the last knot's M, the
+    share of the ullage vented by its end), or None; ``vented``: that share at its start."""
     obs = run.observations
     spacing = config.knot_s
     for c in ("p_v_Pa", "T_v_K", "T_l_K") + (("H_l_m",) if has_level else ()) + (("T_w_K",) if has_wall else ()):
@@ -503,11 +533,12 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         M_start = _inventory(thermo, V_tank, x0, run.initial.fill_ratio * V_tank, C_w, x0[3] if wall_ok else x0[2])[0]
     V_l = volumes(vals[:, 4]) if level_ok else np.array(
         [_liquid_volume_for_mass(thermo, V_tank, vals[k], M_start + metered_M[k]) for k in range(n)])
-    Ms, Es, hvs, hls, dhl = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    Ms, Es, hvs, hls, dhl, mvs = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     Jm, Je = np.zeros((n, 5)), np.zeros((n, 5))
     for k in range(n):
         x = vals[k]
         Ms[k], Es[k], hvs[k], hls[k] = _inventory(thermo, V_tank, x, V_l[k], C_w, x[3] if wall_ok else x[2])
+        mvs[k] = thermo.vapor(x[0], x[1])[0] * (V_tank - V_l[k])
         for j, c in enumerate(OBS_CHANNELS):
             if fits[c] is None or (c == "H_l_m" and not level_ok) or (c == "T_w_K" and not wall_ok):
                 continue
@@ -521,7 +552,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
             Jm[k, j], Je[k, j] = (Mp - Mm) / (2 * step), (Ep - Em) / (2 * step)
             if c == "T_l_K":
                 dhl[k] = (hlp - hlm) / (2 * step)
-    met = _metered(thermo, sched, knots, vals[:, 0], hvs, hls)
+    met = _metered(thermo, sched, knots, vals[:, 0], hvs, hls, mvs, vented)
     # A liquid sensor offset also shifts the enthalpy the drains are metered at (they leave at the
     # measured T_l): its signature in the residual is the inventory's change less that of the
     # metered energy (linear in hl, so one unit offset of hl by dh_l/dT_l gives it exactly).
@@ -551,9 +582,12 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     E_scale = birge_e / _H_REF
     wall = -C_w * (vals[:, 3] if wall_ok else np.zeros(n)) / _H_REF
     zeros = np.zeros(n)
+    # Per mole of inert gas in the ullage: the sensors count it as the fluid (same moles at the
+    # same p, T), and a vent meters it at its own molar mass (module docstring).
+    dM = M_INERT_KG_PER_MOL - thermo.molar_mass_kg_per_mol
     sig = {"heat": (zeros, tt / _H_REF), "vapor_leak": (-tt, -met["Hv"] / _H_REF),
            "liquid_leak": (-tt, -met["Hl"] / _H_REF), "inflow_meter_bias": (met["in_M"], met["in_E"] / _H_REF),
-           "mass": (tt, zeros)}
+           "noncondensable_gas": (dM * met["vent_M"], dM * met["vent_E"] / _H_REF), "mass": (tt, zeros)}
     if level_ok:
         C = np.block([[CM * birge_m**2, CME * birge_m * E_scale], [CME.T * birge_m * E_scale, CE * E_scale**2]])
         data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], J_Tl_E / _H_REF]),
@@ -573,7 +607,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         sl = math.sqrt(covs[2][k, k] + covs[0][k, k] * dTdp**2)
         cons.append((knots[k], p, T_v, T_l, T_sat, T_v < T_sat - max(3 * sv, config.consistency_margin_K),
                      T_l > T_sat + max(3 * sl, config.consistency_margin_K)))
-    return phase, data, fig, cons, (Ms[-1] if not level_ok else None)
+    return phase, data, fig, cons, (Ms[-1] if not level_ok else None), met["vented"]
 
 
 # ----------------------------------------------------------------------------- the audit
@@ -609,12 +643,12 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     thermo = _Thermo(run.fluid)
 
     phases, datas, figs, cons = [], [], [], []
-    M_end = None
+    M_end, vented = None, 0.0
     for a, b in _phases(run, config.min_phase_s):
-        got = _audit_phase(run, a, b, thermo, geometry, V_tank, C_w, has_level, has_wall, M_end, config)
+        got = _audit_phase(run, a, b, thermo, geometry, V_tank, C_w, has_level, has_wall, M_end, vented, config)
         if got is None:
             continue
-        phase, data, fig, c, M_end = got
+        phase, data, fig, c, M_end, vented = got
         phases.append(phase), datas.append(data), figs.append(fig), cons.extend(c)
     if not phases:
         raise ValueError(f"run {run.name!r}: no operating phase has enough samples of p_v, T_v and T_l to audit")
@@ -626,11 +660,20 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     B = general.birge
     mass = Estimate(*general.rate("mass")) if mass_level else None
     heat = Estimate(*general.rate("heat"))
+    consistency, inert = _consistency(thermo, cons, config)
+    superheat = float(np.median([r[3] - r[4] for r in cons]))
+    excluded = ""
+    if superheat > config.consistency_margin_K:
+        excluded = (f"the liquid reads a median {superheat:.2f} K warmer than saturation at the measured pressure; an "
+                    "inert gas would hold it below (it lowers the hydrogen's partial pressure)")
     sols, hyps = {}, {}
     for name in HYPOTHESES:
         if name == "inflow_meter_bias" and not fit.has_inflow:
             continue
-        if name in ("vapor_leak", "liquid_leak", "inflow_meter_bias") and not mass_level:
+        if name in ("vapor_leak", "liquid_leak", "inflow_meter_bias", "noncondensable_gas") and not mass_level:
+            continue
+        # An inert gas shows only where gas is vented, and not where the liquid rules it out.
+        if name == "noncondensable_gas" and (not fit.has_vent or excluded):
             continue
         if name == "wall_heat_capacity_error" and not fit.use_wall:
             continue
@@ -642,13 +685,11 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     w = np.array([1 / e.std**2 for e in per])
     v = np.array([e.value for e in per])
     chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
-    consistency, inert = _consistency(thermo, cons, config)
-    superheat = float(np.median([r[3] - r[4] for r in cons]))
-    excluded = ""
-    if superheat > config.consistency_margin_K:
-        excluded = (f"the liquid reads a median {superheat:.2f} K warmer than saturation at the measured pressure; an "
-                    "inert gas would hold it below (it lowers the hydrogen's partial pressure)")
-    findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level)
+    ini = run.initial
+    # The inert gas's partial pressure cannot exceed the pressure less the liquid's saturation
+    # pressure (the liquid surface sits at saturation of the fluid's partial pressure).
+    ullage = (ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
+    findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level, ullage)
     # The nuisances as the explanation the findings rest on estimates them.
     s = sols[chosen] if chosen in sols else general
     cw = Estimate(1.0 + s.value("wall"), s.std("wall", B)) if fit.use_wall else None
@@ -694,6 +735,7 @@ class _RunFit:
         self.datas = datas
         self.use_wall = has_wall and any(np.ptp(d.wall) > 0 for d in datas)
         self.has_inflow = any(np.ptp(d.cols["inflow_meter_bias"]) > 0 for d in datas)
+        self.has_vent = any(np.ptp(d.cols["noncondensable_gas"]) > 0 for d in datas)
         self.r = np.concatenate([np.concatenate([d.rM, d.rE / _H_REF]) if d.rM is not None else d.rE / _H_REF
                                  for d in datas])
         n = len(self.r)
@@ -798,14 +840,24 @@ def _consistency(thermo: _Thermo, rows, config: AuditConfig) -> tuple[list[tuple
     return out, inert
 
 
-def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level):
-    """The findings of the balances (module docstring, step 6) and the hypothesis they rest on ("" for none)."""
+def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level, ullage=None):
+    """The findings of the balances (module docstring, step 6) and the hypothesis they rest on ("" for none).
+
+    ``ullage``: (p [Pa], T_v [K], V_v [m3], room [Pa]) at the start: an inert gas's partial pressure
+    is stated from the first three, and an amount whose partial pressure exceeds ``room`` (the
+    pressure less the liquid's saturation pressure) by three standard errors is inadmissible.
+    """
     out: list[InventoryFinding] = []
     chosen = ""
     z, sep = config.z_name, config.chi2_separation
     note = "" if mass_level else " (no level sensor: an unmetered mass loss would read as heat too)"
-    # A leak's rate is a loss (> 0); a fitted negative one is not a leak.
-    admissible = [h for h in hyps.values() if h.name not in ("vapor_leak", "liquid_leak") or h.estimate.value > 0]
+    # A leak's rate is a loss (> 0), an amount of gas is positive: a fitted negative one is neither.
+    admissible = [h for h in hyps.values()
+                  if h.name not in ("vapor_leak", "liquid_leak", "noncondensable_gas") or h.estimate.value > 0]
+    if ullage is not None:
+        p, T_v, V_v, room = ullage
+        admissible = [h for h in admissible if h.name != "noncondensable_gas"
+                      or (h.estimate.value - 3 * h.estimate.std) * R_J_PER_MOLK * T_v / V_v <= room]
     free_mass = mass is not None and abs(mass.z) >= z
     free_heat = abs(heat.z) >= z
     if admissible:
@@ -816,7 +868,7 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
         # is ~0 there only says the nuisances (wall capacity prior, liquid offset) could explain it.
         rivals = [h for h in admissible if h is not best and h.chi2 - best.chi2 < sep and abs(h.z) >= 3]
         if significant and explains and not rivals:
-            out.append(_single(best, note))
+            out.append(_single(best, note, ullage))
             chosen = best.name
         elif free_mass or free_heat or (significant and explains):
             # A single rate that is resolved only where it fails to explain the balances, while
@@ -852,8 +904,18 @@ def _heat_candidates(heat: Estimate) -> tuple[str, ...]:
     return HEAT_CANDIDATES if heat.value > 0 else ()
 
 
-def _single(h: Hypothesis, note: str = "") -> InventoryFinding:
+def _single(h: Hypothesis, note: str = "", ullage=None) -> InventoryFinding:
     e = h.estimate
+    if h.name == "noncondensable_gas":
+        share = ""
+        if ullage is not None:
+            p, T_v, V_v, _ = ullage
+            p_in = e.value * R_J_PER_MOLK * T_v / V_v
+            share = f" (a partial pressure of {p_in:.3g} Pa at the start, {p_in / p:.0%} of the pressure)"
+        return InventoryFinding(h.name, e, "mol", (h.name,),
+                                f"{e.value:.3g} +- {e.std:.2g} mol of inert gas (helium) in the ullage{share}: the "
+                                "vents meter more mass than the sensors' inventory loses, as a heavier gas counted as "
+                                "the fluid's vapour leaves with them")
     if h.name == "wall_heat_capacity_error":
         return InventoryFinding(h.name, e, "x stated", (h.name,),
                                 f"the wall stores heat as {e.value:.3g} +- {e.std:.2g} times the stated heat capacity: "

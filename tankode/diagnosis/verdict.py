@@ -50,14 +50,14 @@ from .audit import HEAT_CANDIDATES, Estimate, RunAudit
 # first parameter is compared with; the wall's is its factor minus 1).
 AUDIT_HYPOTHESIS = {"heat_leak_liquid": "heat", "heat_leak_vapor": "heat", "heat_leak_wall": "heat",
                     "vapor_leak": "vapor_leak", "liquid_leak": "liquid_leak", "inflow_meter_bias": "inflow_meter_bias",
-                    "wall_heat_capacity_error": "wall_heat_capacity_error"}
+                    "wall_heat_capacity_error": "wall_heat_capacity_error", "noncondensable_gas": "noncondensable_gas"}
 INVENTORY = ("heat_leak_liquid", "heat_leak_vapor", "heat_leak_wall", "vapor_leak", "liquid_leak", "inflow_meter_bias")
 # Standard errors of the audit's estimate within which a dynamic estimate must lie.
 AUDIT_SIGMAS = 3.0
 # Relative accuracy allowed on top of that (the accuracy a named estimate must have).
 AUDIT_RELATIVE = 0.25
 _UNITS = {"heat": "W", "vapor_leak": "kg/s", "liquid_leak": "kg/s", "inflow_meter_bias": "relative",
-          "wall_heat_capacity_error": "x stated", "temperature_sensor_bias": "K"}
+          "wall_heat_capacity_error": "x stated", "temperature_sensor_bias": "K", "noncondensable_gas": "mol"}
 
 
 @dataclass(frozen=True)
@@ -143,7 +143,7 @@ def inventory(audits: list[RunAudit]) -> Inventory:
     inert_Pa = float(min(inert)) if inert else None
     singles = {f.name for a in audits for f in a.findings
                if f.name in ("vapor_leak", "liquid_leak", "inflow_meter_bias", "wall_heat_capacity_error",
-                             "temperature_sensor_bias")}
+                             "temperature_sensor_bias", "noncondensable_gas")}
     groups = [f for a in audits for f in a.findings if f.name in ("unmetered_heat", "unmetered_mass")]
     base = Inventory(audits, inert_Pa=inert_Pa, sentences=sentences)
     if len(singles) == 1 and not groups:
@@ -166,14 +166,16 @@ def inventory(audits: list[RunAudit]) -> Inventory:
 def audit_consistency(mechanism: str, value: float, inv: Inventory) -> tuple[bool, str]:
     """Whether a dynamic estimate of an inventory mechanism is within what the audit measured.
 
-    Returns ``(consistent, reason)``; mechanisms the audit does not measure are consistent, except
-    an inert gas where a run's liquid reads warmer than saturation at the measured pressure on
-    most of the run (``RunAudit.inert_gas_excluded``).
+    Returns ``(consistent, reason)``; mechanisms the audit does not measure are consistent. An
+    inert gas is ruled out where a run's liquid reads warmer than saturation at the measured
+    pressure on most of the run (``RunAudit.inert_gas_excluded``), and is measured (in mol) where
+    gas is vented.
     """
     if mechanism == "noncondensable_gas":
         why = [f"{a.run}: {a.inert_gas_excluded}" if len(inv.audits) > 1 else a.inert_gas_excluded
                for a in inv.audits if a.inert_gas_excluded]
-        return (False, "ruled out by the saturation test: " + "; ".join(why)) if why else (True, "")
+        if why:
+            return False, "ruled out by the saturation test: " + "; ".join(why)
     hyp = AUDIT_HYPOTHESIS.get(mechanism)
     if hyp is None:
         return True, ""

@@ -17,7 +17,9 @@ class NoncondensableGas(Mechanism):
 
     Limits: the inert gas's heat capacity (n c_v, ~12 J/K per mol of He against m_v c_v of
     several kJ/K) and its share of the volume work are neglected, and the liquid is taken at
-    the hydrogen pressure (its properties barely depend on the pressure).
+    the hydrogen pressure (its properties barely depend on the pressure). ``n`` is constant:
+    vents remove hydrogen only, where a real vent takes the gas in proportion to its mole
+    fraction (the inventory audit measures that share, ``tankode.diagnosis.audit_run``).
 
     Signature: a pressure offset that grows with T_v and shrinks as the ullage grows; with T_v
     and V_v constant it cannot be told from a sensor bias.
