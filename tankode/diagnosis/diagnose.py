@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..errors import SimulationError, StateLeftDomain
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS

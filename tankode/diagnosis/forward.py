@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..closures import ReferenceClosure, ScaledClosure
 from ..fleet import Fleet
 from ..geometry import stack_geometries

@@ -31,7 +31,7 @@ from .model import RBF_OUTPUTS, Surrogate, PhaseFit, evaluate_phase
 from .peng_robinson import PengRobinson, TaylorTemperature
 from .rbf import SHAPE_FREE_KERNELS, fit_rbf
 from .saturation import fit_saturation
-from .._threads import single_threaded
+from ..threads import single_threaded
 
 FORMAT_VERSION = 2  # bump when the meaning of a cached file changes (the hash includes it)
 PHASES = ("vapor", "liquid")

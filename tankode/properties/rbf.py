@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 
 KERNELS = ("gaussian", "multiquadric", "inverse_multiquadric", "polyharmonic3", "thin_plate")
 SHAPE_FREE_KERNELS = ("polyharmonic3", "thin_plate")
