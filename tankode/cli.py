@@ -269,7 +269,7 @@ def cmd_diagnose(args) -> int:
     elif v.kind == "unresolved":
         print(f"measured, not located: {v.sentence}; candidates: {', '.join(v.candidates)}")
     else:
-        print("cause: none (nothing unmetered beyond the noise; no candidate clears the evidence thresholds)")
+        print(f"cause: none ({v.sentence.removeprefix('no cause: ')})")
     print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "
           f"{paths['md']}, {paths['model']}/")
     return 0

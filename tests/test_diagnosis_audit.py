@@ -70,6 +70,22 @@ def test_a_short_vent_merged_into_the_next_phase_is_still_metered_exactly():
     np.testing.assert_allclose(met["Hv"][-1], 4.3e5 * 600.0)  # a leak's enthalpy: the integral of h_v
 
 
+def test_the_inert_gas_column_is_the_share_of_the_gas_vented():
+    """Per mole in the ullage at the start, the moles a vent takes: with m_v and h_v constant,
+    ``1 - exp(-mdot t / m_v)`` (the gas leaves in proportion to what is left), across pieces,
+    knots and a share vented before the first knot; zero where nothing is vented."""
+    sched = Schedule.from_steps([(0.0, {}), (100.0, {"mdot_v_out_kg_s": 0.01}), (700.0, {"mdot_v_out_kg_s": 0.0})])
+    knots = np.array([0.0, 300.0, 600.0, 900.0])
+    m_v, h_v = 3.0, 4.5e5
+    met = _metered(None, sched, knots, np.full(4, 2e5), np.full(4, h_v), np.zeros(4), np.full(4, m_v))
+    vented = 0.01 * np.clip(knots - 100.0, 0.0, 600.0) / m_v
+    np.testing.assert_allclose(met["vent_M"], 1.0 - np.exp(-vented), rtol=1e-12)
+    np.testing.assert_allclose(met["vent_E"], h_v * (1.0 - np.exp(-vented)), rtol=1e-12)
+    assert met["vented"] == pytest.approx(vented[-1])
+    later = _metered(None, sched, knots, np.full(4, 2e5), np.full(4, h_v), np.zeros(4), np.full(4, m_v), vented=0.5)
+    np.testing.assert_allclose(later["vent_M"], np.exp(-0.5) * met["vent_M"], rtol=1e-12)
+
+
 def test_tankode_own_heat_leak_and_wall_capacity_are_measured_in_closed_form():
     """Tankode's model conserves m_v u_v + m_l u_l + C_w T_w up to the metered flows, so its clean
     readings must give the hidden heat and the true wall capacity: 500 W into the wall with a wall
@@ -215,7 +231,8 @@ def test_the_verdict_takes_the_audits_cause_and_names_dynamic_ones_only_when_not
     assert (v.kind, v.name, v.source) == ("cause", "vapor_leak", "inventory audit")
     v = decide(Inventory(()), [_cand("pressure_sensor_bias", value=8e3)], th)
     assert (v.kind, v.name, v.source) == ("cause", "pressure_sensor_bias", "dynamic search")
-    assert decide(Inventory(()), [_cand("pressure_sensor_bias", passes=False)], th).kind == "none"
+    none = decide(Inventory(()), [_cand("pressure_sensor_bias", passes=False)], th)
+    assert none.kind == "none" and "the inventory was not audited" in none.sentence  # no run had the sensors
     # a cold ullage: the inert gas or the pressure bias if the dynamic search names one, else both listed
     cold = Inventory((), inert_Pa=2.0e4)
     assert decide(cold, [_cand("thermal_stratification")], th).name == "inert_gas_or_sensor_bias"

@@ -98,8 +98,7 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
                 "the data favour the cause but do not exclude these; a measurement that tells them apart "
                 "(see each mechanism's signature) would settle it.")
     elif v.kind == "none":
-        L.append("**No cause**: nothing unmetered beyond the noise in the inventory, and no candidate mechanism "
-                 "explains the dynamic misfit with the required evidence.")
+        L.append(f"**No cause**: {v.sentence.removeprefix('no cause: ')}.")
     if d.cause is None and d.unexplained:
         L.append("Channels still beyond the noise on held-out data: " + ", ".join(
             f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"

@@ -94,6 +94,10 @@ class Verdict:
 
 NONE = Verdict("none", None, None, "", (), "", "no cause: nothing unmetered beyond the noise, and no candidate "
                                                   "mechanism explains the data with the required evidence")
+# Where no run could be audited (its sensors do not give the inventory): nothing is said of it.
+NONE_UNAUDITED = Verdict("none", None, None, "", (), "", "no cause: the inventory was not audited (no run measures "
+                                                             "p_v, T_v and T_l), and no candidate mechanism explains "
+                                                             "the data with the required evidence")
 
 
 @dataclass(frozen=True)
@@ -243,7 +247,7 @@ def decide(inv: Inventory, ranking, thresholds) -> Verdict:
                        f"at least {inv.inert_Pa:.4g} Pa, or a biased pressure sensor (the dynamic search names neither)")
     if named:
         return _dynamic(named[0])
-    return NONE
+    return NONE if inv.audits else NONE_UNAUDITED
 
 
 def _dynamic(c) -> Verdict:
