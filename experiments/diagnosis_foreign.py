@@ -1,10 +1,12 @@
-"""The diagnosis on two simulators that share no code with tankode: what it names, against the truth.
+"""The diagnosis on three simulators that share no code with tankode: what it names, against the truth.
 
 Generates runs with ``tests/nodal_sim.py`` (through its command line: laws ``mcadams`` and
-``paper_printed`` by default, four shapes and operations, low noise, each hidden mechanism, nulls)
-and the fourteen runs of ``tests/independent_sim.py`` (seed 0, the magnitudes of its
+``paper_printed`` by default, four shapes and operations, low noise, each hidden mechanism, nulls),
+the fourteen runs of ``tests/independent_sim.py`` (seed 0, the magnitudes of its
 ``SCENARIO_FOR`` table; that module has no command line that writes runs, so a subprocess calls
-its public ``simulate_run``), diagnoses each with ``tankode.diagnosis.diagnose`` and writes
+its public ``simulate_run``) and ``tests/cryo_sim.py``'s three named tanks (liquid nitrogen,
+methane and hydrogen; every hidden mechanism at the magnitudes of ``CRYO_MAGNITUDES``, nulls),
+diagnoses each with ``tankode.diagnosis.diagnose`` and writes
 
 * ``OUT/table.md`` and ``OUT/table.json``: simulator, scenario, law, hidden mechanism and value,
   the verdict (kind, name, estimate, candidates), the audit's z of the hidden mechanism's
@@ -21,6 +23,7 @@ Usage::
 
     python experiments/diagnosis_foreign.py --out diag_foreign            # the whole table (~1-2 h)
     python experiments/diagnosis_foreign.py --out d --only nodal --laws mcadams --scenarios tank_4p9m3
+    python experiments/diagnosis_foreign.py --out d --only cryo                  # 33 runs, three fluids
 """
 
 from __future__ import annotations
@@ -56,6 +59,16 @@ INERT_MOL = {"tank_4p9m3": 200.0, "upright_13m3": 700.0, "sphere_4m3": 200.0, "h
 INVENTORY = {m: AUDIT_HYPOTHESIS[m] for m in INVENTORY_MECHANISMS}
 SCENARIOS = ("tank_4p9m3", "upright_13m3", "sphere_4m3", "hcyl_drain_fill")
 LAWS = ("mcadams", "paper_printed")
+# cryo_sim mechanism -> tankode's name for it.
+CRYO_MECHANISMS = {"heat_leak_liquid_W": "heat_leak_liquid", "heat_leak_vapor_W": "heat_leak_vapor",
+                   "heat_leak_wall_W": "heat_leak_wall", "vapor_leak_kg_s": "vapor_leak",
+                   "liquid_leak_kg_s": "liquid_leak", "inflow_meter_bias": "inflow_meter_bias",
+                   "pressure_sensor_bias_Pa": "pressure_sensor_bias", "temperature_sensor_bias_K": "temperature_sensor_bias",
+                   "helium_mol": "noncondensable_gas", "wall_heat_capacity_error": "wall_heat_capacity_error"}
+# Per cryo_sim tank: heat leaks [W] and leaks [kg/s] of about 5 standard errors of its audit (measured
+# on nulls of seeds 1-6: heat 20-35 W on the 2 m3 and 8 m3 tanks); helium for 15 % of the initial pressure.
+CRYO_SCENARIOS = ("ln2_dewar", "lh2_hcyl", "lch4_sphere")
+CRYO_MAGNITUDES = {"ln2_dewar": (150.0, 5e-4), "lh2_hcyl": (150.0, 5e-4), "lch4_sphere": (600.0, 2e-3)}
 
 
 def nodal_jobs(scenarios, laws) -> list[dict]:
@@ -96,6 +109,42 @@ def generate(job: dict, folder: Path) -> Path:
     return folder / f"{name}.json"
 
 
+def cryo_jobs(scenarios) -> list[dict]:
+    jobs = []
+    for sc in scenarios:
+        heat, leak = CRYO_MAGNITUDES[sc]
+        values = {"heat_leak_liquid_W": heat, "heat_leak_vapor_W": heat, "heat_leak_wall_W": heat,
+                  "vapor_leak_kg_s": leak, "liquid_leak_kg_s": leak, "inflow_meter_bias": 0.15,
+                  "pressure_sensor_bias_Pa": 5000.0, "temperature_sensor_bias_K": 0.5, "helium_mol": None,
+                  "wall_heat_capacity_error": 0.5}
+        jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": None, "value": 0.0, "args": []})
+        for key, value in values.items():
+            jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": CRYO_MECHANISMS[key],
+                         "value": value, "key": key})
+    return jobs
+
+
+def generate_cryo(job: dict, folder: Path) -> Path:
+    """Write a cryo_sim run; the helium amount is set from the null run's initial ullage (15 % of p)."""
+    name = f"cryo_{job['scenario']}_{job['hidden'] or 'none'}"
+    args = []
+    if job["hidden"] is not None:
+        if job["value"] is None:
+            null = json.loads((folder / f"cryo_{job['scenario']}_none.truth.json").read_text())["initial_true"]
+            meta = json.loads((folder / f"cryo_{job['scenario']}_none.json").read_text())
+            V_v = (1.0 - null["fill_ratio"]) * meta["tank"]["volume_m3"]
+            job["value"] = 0.15 * null["p_Pa"] * V_v / (8.314462618 * null["T_v_K"])
+        args = ["--mechanism", f"{job['key']}={job['value']}"]
+    path = folder / f"{name}.json"
+    if not path.exists():
+        cmd = [sys.executable, str(ROOT / "tests" / "cryo_sim.py"), job["scenario"], "--noise", "low", "--seed", "0",
+               "--out", str(folder), "--name", name, *args]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+    truth = json.loads((folder / f"{name}.truth.json").read_text())["initial_true"]
+    job["inert_share"] = truth.get("p_helium_Pa", 0.0) / truth["p_Pa"]
+    return path
+
+
 def independent_runs(folder: Path) -> list[dict]:
     code = _INDEPENDENT.format(tests=str(ROOT / "tests"), folder=str(folder))
     done = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
@@ -106,7 +155,7 @@ def independent_runs(folder: Path) -> list[dict]:
 def outcome(job: dict, verdict, audit) -> tuple[str, float | None]:
     """(outcome, the audit's z of the hidden mechanism's inventory signature or None)."""
     hidden = job["hidden"]
-    hyp = INVENTORY.get(hidden)
+    hyp = AUDIT_HYPOTHESIS.get(hidden)
     z = None
     if hyp is not None and audit is not None and hyp in audit.hypotheses:
         z = audit.hypotheses[hyp].z
@@ -182,7 +231,7 @@ def write_table(rows: list[dict], out: Path) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="output folder (runs/, table.md, table.json)")
-    ap.add_argument("--only", choices=("nodal", "independent"), default=None, help="one simulator only")
+    ap.add_argument("--only", choices=("nodal", "independent", "cryo"), default=None, help="one simulator only")
     ap.add_argument("--laws", nargs="+", default=list(LAWS), help="nodal_sim laws")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), help="nodal_sim scenarios")
     ap.add_argument("--hidden", nargs="*", default=None, help="only these hidden mechanisms (tankode names; 'none')")
@@ -193,7 +242,7 @@ def main(argv=None) -> int:
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     jobs = []
-    if args.only != "independent":
+    if args.only in (None, "nodal"):
         for job in nodal_jobs(args.scenarios, args.laws):
             if args.hidden is None or (job["hidden"] or "none") in args.hidden:
                 name = runs / f"{job['scenario']}_{job['law']}_{job['hidden'] or 'none'}.json"
@@ -202,8 +251,14 @@ def main(argv=None) -> int:
                     truth = json.loads(name.with_suffix(".truth.json").read_text())["initial_true"]
                     job["inert_share"] = 1.0 - truth["p_H2_Pa"] / truth["p_Pa"]
                 jobs.append(job)
-    if args.only != "nodal":
+    if args.only in (None, "independent"):
         jobs += [j for j in independent_runs(runs) if args.hidden is None or (j["hidden"] or "none") in args.hidden]
+    if args.only in (None, "cryo"):
+        for job in cryo_jobs(CRYO_SCENARIOS):  # the null first: the helium amount is set from it
+            if args.hidden is None or (job["hidden"] or "none") in args.hidden or job["hidden"] is None:
+                job["path"] = generate_cryo(job, runs)
+                if args.hidden is None or (job["hidden"] or "none") in args.hidden:
+                    jobs.append(job)
     done = json.loads((out / "table.json").read_text()) if (out / "table.json").exists() else []
     key = lambda r: (r["sim"], r["scenario"], r["law"], r["hidden"])  # noqa: E731
     rows = [r for r in done if key(r) in {key(j) for j in jobs}]  # resume: the rows already measured are kept
