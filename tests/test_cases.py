@@ -151,7 +151,7 @@ def test_a_failed_simulation_names_the_mechanisms_own_states():
     assert "extra_0" not in str(err.value)
 
 
-@pytest.mark.parametrize("fluid,p_Pa", [("Nitrogen", 1.3e5), ("Methane", 1.5e5)])
+@pytest.mark.parametrize("fluid,p_Pa", [("Nitrogen", 1.3e5), ("Methane", 1.5e5), ("Argon", 1.1e5)])
 def test_a_tank_of_another_fluid_simulates_on_its_own_surrogate_and_conserves_mass_and_energy(fluid, p_Pa, tmp_path):
     """The format allows any CoolProp fluid: its run gets a surrogate on the fluid's storage tier
     (``tankode.properties.default_domain``) and the tank's balances hold as for hydrogen: a closed

@@ -189,6 +189,10 @@ class Domain:
 # liquid down to this share of the way from the triple point to T_sat(p_min) (hydrogen: 17 K).
 _T_V_MAX_OF_T_SAT = 1.66
 _T_L_MIN_SHARE = 0.6
+# Both tiers start at least this multiple of the triple-point pressure: argon, krypton and
+# xenon boil at 1 atm only 1.2-1.5 times their triple-point pressure, so their tanks store liquid
+# within a few kelvin of freezing (argon: 87.3 K at 1 atm, triple point 83.8 K at 0.69 bar).
+_P_MIN_OF_TRIPLE = 1.05
 _HYDROGENS = ("ParaHydrogen", "Hydrogen", "OrthoHydrogen")
 
 
@@ -196,19 +200,19 @@ def default_domain(fluid_name: str = "ParaHydrogen") -> Domain:
     """The default (first) tier for ``fluid_name``: storage tanks' pressures and temperatures.
 
     Hydrogen (para, normal, ortho) gets ``Domain``'s defaults. Another fluid (nitrogen, methane,
-    oxygen, ...) gets the same pressures, 0.7 to 6 bar, kept within 2 times its triple-point and
-    half its critical pressure, the vapour up to 1.66 ``T_sat(p_max)`` and the liquid down to 60 %
+    oxygen, argon, ...) gets the same pressures, 0.7 to 6 bar, kept within 1.05 times its
+    triple-point and half its critical pressure, the vapour up to 1.66 ``T_sat(p_max)`` and the liquid down to 60 %
     of the way from its triple point to ``T_sat(p_min)`` (hydrogen's fields in those terms), with
     the metastable margin of 1.8 K or less where its single-phase branches end sooner.
     """
     if fluid_name in _HYDROGENS:
         return Domain(fluid_name=fluid_name)
     lim = _fluid_limits(fluid_name)
-    p_min = max(Domain.p_min_Pa, 2.0 * lim["p_triple"])
+    p_min = max(Domain.p_min_Pa, _P_MIN_OF_TRIPLE * lim["p_triple"])
     p_max = min(Domain.p_max_Pa, 0.5 * lim["p_crit"])
     if not p_min < p_max:
-        raise ValueError(f"{fluid_name}: no storage pressures between 2 times its triple-point pressure "
-                         f"({2.0 * lim['p_triple']:.4g} Pa) and half its critical pressure ({0.5 * lim['p_crit']:.4g} Pa)")
+        raise ValueError(f"{fluid_name}: no storage pressures between {_P_MIN_OF_TRIPLE:g} times its triple-point "
+                         f"pressure ({_P_MIN_OF_TRIPLE * lim['p_triple']:.4g} Pa) and half its critical pressure ({0.5 * lim['p_crit']:.4g} Pa)")
     T_sat_lo, T_sat_hi = _T_sat(fluid_name, float(p_min)), _T_sat(fluid_name, float(p_max))
     margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min)),
                  _max_metastable_K(fluid_name, float(p_max)))
@@ -234,7 +238,7 @@ def wide_domain(fluid_name: str = "ParaHydrogen") -> Domain:
     CoolProp's density solver fails nearer the spinodal than its branch test says).
     """
     lim = _fluid_limits(fluid_name)
-    p_min = max(WIDE_P_MIN_OF_CRIT * lim["p_crit"], 2.0 * lim["p_triple"])
+    p_min = max(WIDE_P_MIN_OF_CRIT * lim["p_crit"], _P_MIN_OF_TRIPLE * lim["p_triple"])
     p_max = WIDE_P_MAX_OF_CRIT * lim["p_crit"]
     shares = [_max_metastable_K(fluid_name, float(p)) / (lim["T_crit"] - _T_sat(fluid_name, float(p)))
               for p in np.linspace(p_min, p_max, 8)]
