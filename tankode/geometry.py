@@ -227,6 +227,17 @@ class TankGeometry:
         # wetted wall below height - h, which keeps the vapour area accurate when it is small.
         return self._wall_below(h), self._wall_below(self._b(self.height_m, h) - h)
 
+    def wetted_area_slope_m(self, H_m: Any) -> Tensor:
+        """d A_wall_liquid / dH [m] at level ``H_m`` [m], detached: the wetted wall gained per metre.
+
+        A central difference of the wetted area (step 1e-4 of the radius, levels clamped) unless a
+        shape gives it in closed form.
+        """
+        with torch.no_grad():
+            H = torch.as_tensor(H_m, dtype=torch.float64)
+            dH = 1e-4 * self._b(self.radius_m, H)
+            return (self._wall_below(self._clamp_level(H + dH)) - self._wall_below(self._clamp_level(H - dH))) / (2 * dH)
+
     def level_at_volume(self, V_m3: Any, *, rtol: float = 1e-6) -> Tensor:
         """Liquid level [m] for liquid volume ``V_m3`` [m3]; inverse of :meth:`volume_at_level`.
 
@@ -448,6 +459,17 @@ class VerticalCylinderEllipticalHeads(TankGeometry):
 
     def __init__(self, radius_m: Any, cylinder_length_m: Any, head_aspect: Any):
         super().__init__(radius_m=radius_m, cylinder_length_m=cylinder_length_m, head_aspect=head_aspect)
+        # F(a), a whole head's meridian integral: a constant of the shape that every wetted-area
+        # evaluation needs (three times); computed once, unless a dimension is being trained.
+        a = self.head_depth_m
+        self._head_F = None if any(t.requires_grad for t in self._dims.values()) else \
+            _spheroid_meridian_integral(a, a, self.head_aspect)
+
+    def _F_head(self, like):
+        if self._head_F is None:
+            a = self.head_depth_m
+            return self._b(_spheroid_meridian_integral(a, a, self.head_aspect), like)
+        return self._b(self._head_F, like)
 
     @property
     def cylinder_length_m(self) -> Tensor:
@@ -509,17 +531,29 @@ class VerticalCylinderEllipticalHeads(TankGeometry):
         r, lc, k, a = self._parts(h)
         h_top = lc + 2.0 * a
         f = lambda z: _spheroid_meridian_integral(z, a, k)  # noqa: E731
+        F_a = self._F_head(h)
         # Clamped depths keep F's argument in [0, a] (sqrt(1 - u) is NaN beyond a prolate head's
         # tip) in the pieces where() discards; piece selection as in _volume_below.
         d_bottom = torch.clamp(h, max=a)
         d_top = torch.clamp(h_top - h, max=a)  # dry depth in the top head
         # z measured from a head's equator: the bottom-head zone is z in [-a, d - a] (F is odd),
         # the wetted part of the top head z in [0, a - d_top].
-        bottom = f(a) - f(a - d_bottom)
-        middle = f(a) + (h - a)
-        top = f(a) + lc + f(a - d_top)
+        bottom = F_a - f(a - d_bottom)
+        middle = F_a + (h - a)
+        top = F_a + lc + f(a - d_top)
         in_bottom, in_top = h <= a, h_top - h <= a
         return 2.0 * math.pi * r * torch.where(in_bottom, bottom, torch.where(in_top, top, middle))
+
+    def wetted_area_slope_m(self, H_m: Any) -> Tensor:
+        """d A_wall_liquid / dH [m], detached, in closed form: ``2 pi R sqrt(1 - u)`` in a head, with
+        ``u = (1 - k^2) (z / a)^2`` at the axial distance ``z`` of the level from the head's equator
+        (``F'(z)`` of :func:`_spheroid_meridian_integral`), ``2 pi R`` along the straight part."""
+        with torch.no_grad():
+            h = self._clamp_level(H_m)
+            r, lc, k, a = self._parts(h)
+            h_top = lc + 2.0 * a
+            z = torch.where(h <= a, a - h, torch.where(h_top - h <= a, h - lc - a, torch.zeros_like(h)))
+            return 2.0 * math.pi * r * torch.sqrt(torch.clamp(1.0 - (1.0 - k**2) * (z / a) ** 2, min=0.0))
 
     def _level_from_volume(self, v):
         r, lc, k, a = self._parts(v)

@@ -213,16 +213,10 @@ class TankModel(nn.Module):
             L_c_m=g.contact_line_m(H_l), J_evap_kg_s=J,
             h_v_J_per_kg=u_v + p / rho_v, h_l_J_per_kg=u_l + p / rho_l,
             h_vsat_J_per_kg=pv.h_vsat, h_lsat_J_per_kg=pv.h_lsat,
-            dA_wl_dH_m=self._wetted_area_slope(H_l),
+            dA_wl_dH_m=g.wetted_area_slope_m(H_l),
             C_w_J_per_K=torch.as_tensor(self.effective_wall_heat_capacity_J_per_K).expand_as(H_l),
         )
         return f, pv, pl
-
-    def _wetted_area_slope(self, H_l: Tensor) -> Tensor:
-        """d A_wl / dH (m) at level ``H_l`` ``(env,)``, by a central difference of the geometry (detached)."""
-        with torch.no_grad():
-            dH = 1e-4 * self.geometry.radius_m
-            return (self.geometry.wetted_areas_m2(H_l + dH)[0] - self.geometry.wetted_areas_m2(H_l - dH)[0]) / (2 * dH)
 
     def applied_forcing(self, forcing: Forcing) -> Forcing:
         """The operations actually applied: the metered ``forcing`` as the mechanisms change it."""

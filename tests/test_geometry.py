@@ -502,3 +502,23 @@ def test_contact_line_is_the_interface_perimeter(name):
     if line.requires_grad:  # (an upright cylinder's is a constant)
         (grad,) = torch.autograd.grad(line.sum(), H)
         assert torch.isfinite(grad).all()
+
+
+@pytest.mark.parametrize("head_aspect", [2.0, 1.0, 0.7])
+def test_the_wetted_wall_gained_per_metre_of_level_is_the_heads_meridian_integrand(head_aspect):
+    """``wetted_area_slope_m`` of elliptical heads in closed form, ``2 pi R sqrt(1 - u)`` in a head
+    and ``2 pi R`` along the straight part, against a central difference of the wetted area
+    (oblate, hemispherical and prolate heads; levels through both heads and the cylinder)."""
+    from tankode.geometry import VerticalCylinderEllipticalHeads
+
+    g = VerticalCylinderEllipticalHeads(torch.tensor([1.5, 1.0], dtype=torch.float64),
+                                        torch.tensor([2.0, 0.5], dtype=torch.float64),
+                                        torch.tensor([head_aspect, head_aspect], dtype=torch.float64))
+    H = torch.stack([torch.linspace(0.01, float(h) - 0.01, 300, dtype=torch.float64) for h in g.height_m])
+    dH = 1e-5 * g.radius_m[:, None]
+    central = (g.wetted_areas_m2(H + dH)[0] - g.wetted_areas_m2(H - dH)[0]) / (2 * dH)
+    slope = g.wetted_area_slope_m(H)
+    assert float(((slope - central).abs() / central).max()) < 1e-7
+    a = g.head_depth_m[:, None]
+    straight = (H > a + 1e-6) & (H < a + g.cylinder_length_m[:, None] - 1e-6)
+    assert torch.allclose(slope[straight], (2 * math.pi * g.radius_m[:, None]).expand_as(H)[straight], rtol=1e-14)
