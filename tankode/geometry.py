@@ -680,6 +680,8 @@ def _to_f64(x: Any, device: torch.device) -> Tensor:
 def _theta_minus_sin(theta: Tensor) -> Tensor:
     """theta - sin(theta) without cancellation at small theta (Taylor series below 0.5)."""
     small = theta < 0.5
+    if not bool(small.any()):  # the common case (a level off the very bottom or top): no series
+        return theta - torch.sin(theta)
     t = torch.where(small, theta, 0.0)
     t2 = t * t
     # alternating series theta^3/3! - theta^5/5! + ... ; truncation < 1e-16 relative at 0.5
