@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from tankode.diagnosis.verdict import AUDIT_HYPOTHESIS, INVENTORY as INVENTORY_MECHANISMS
+from tankode.mechanisms.noncondensable import R_J_PER_MOLK
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,7 +118,7 @@ def cryo_jobs(scenarios) -> list[dict]:
                   "vapor_leak_kg_s": leak, "liquid_leak_kg_s": leak, "inflow_meter_bias": 0.15,
                   "pressure_sensor_bias_Pa": 5000.0, "temperature_sensor_bias_K": 0.5, "helium_mol": None,
                   "wall_heat_capacity_error": 0.5}
-        jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": None, "value": 0.0, "args": []})
+        jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": None, "value": 0.0})
         for key, value in values.items():
             jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": CRYO_MECHANISMS[key],
                          "value": value, "key": key})
@@ -133,7 +134,7 @@ def generate_cryo(job: dict, folder: Path) -> Path:
             null = json.loads((folder / f"cryo_{job['scenario']}_none.truth.json").read_text())["initial_true"]
             meta = json.loads((folder / f"cryo_{job['scenario']}_none.json").read_text())
             V_v = (1.0 - null["fill_ratio"]) * meta["tank"]["volume_m3"]
-            job["value"] = 0.15 * null["p_Pa"] * V_v / (8.314462618 * null["T_v_K"])
+            job["value"] = 0.15 * null["p_Pa"] * V_v / (R_J_PER_MOLK * null["T_v_K"])
         args = ["--mechanism", f"{job['key']}={job['value']}"]
     path = folder / f"{name}.json"
     if not path.exists():
@@ -254,11 +255,12 @@ def main(argv=None) -> int:
     if args.only in (None, "independent"):
         jobs += [j for j in independent_runs(runs) if args.hidden is None or (j["hidden"] or "none") in args.hidden]
     if args.only in (None, "cryo"):
-        for job in cryo_jobs(CRYO_SCENARIOS):  # the null first: the helium amount is set from it
-            if args.hidden is None or (job["hidden"] or "none") in args.hidden or job["hidden"] is None:
+        for job in cryo_jobs(CRYO_SCENARIOS):
+            wanted = args.hidden is None or (job["hidden"] or "none") in args.hidden
+            if wanted or job["hidden"] is None:  # the null is always written: the helium amount is set from it
                 job["path"] = generate_cryo(job, runs)
-                if args.hidden is None or (job["hidden"] or "none") in args.hidden:
-                    jobs.append(job)
+            if wanted:
+                jobs.append(job)
     done = json.loads((out / "table.json").read_text()) if (out / "table.json").exists() else []
     key = lambda r: (r["sim"], r["scenario"], r["law"], r["hidden"])  # noqa: E731
     rows = [r for r in done if key(r) in {key(j) for j in jobs}]  # resume: the rows already measured are kept

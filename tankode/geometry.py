@@ -461,15 +461,14 @@ class VerticalCylinderEllipticalHeads(TankGeometry):
         super().__init__(radius_m=radius_m, cylinder_length_m=cylinder_length_m, head_aspect=head_aspect)
         # F(a), a whole head's meridian integral: a constant of the shape that every wetted-area
         # evaluation needs (three times); computed once, unless a dimension is being trained.
+        self._head_F = None if any(t.requires_grad for t in self._dims.values()) else self._head_meridian()
+
+    def _head_meridian(self) -> Tensor:
         a = self.head_depth_m
-        self._head_F = None if any(t.requires_grad for t in self._dims.values()) else \
-            _spheroid_meridian_integral(a, a, self.head_aspect)
+        return _spheroid_meridian_integral(a, a, self.head_aspect)
 
     def _F_head(self, like):
-        if self._head_F is None:
-            a = self.head_depth_m
-            return self._b(_spheroid_meridian_integral(a, a, self.head_aspect), like)
-        return self._b(self._head_F, like)
+        return self._b(self._head_meridian() if self._head_F is None else self._head_F, like)
 
     @property
     def cylinder_length_m(self) -> Tensor:
@@ -495,8 +494,8 @@ class VerticalCylinderEllipticalHeads(TankGeometry):
 
     @property
     def wall_area_m2(self) -> Tensor:
-        r, a, k = self.radius_m, self.head_depth_m, self.head_aspect
-        return 2.0 * math.pi * r * (self.cylinder_length_m + 2.0 * _spheroid_meridian_integral(a, a, k))
+        r = self.radius_m
+        return 2.0 * math.pi * r * (self.cylinder_length_m + 2.0 * self._F_head(r))
 
     def _parts(self, like):
         r, k = self._d("radius_m", like), self._d("head_aspect", like)

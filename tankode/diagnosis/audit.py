@@ -86,6 +86,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -391,12 +392,12 @@ class _Thermo:
 
 
 def _inventory(thermo: _Thermo, V_tank: float, x: np.ndarray, V_l: float, C_w: float, wall_T: float):
-    """(M, E, h_v, h_l) at channel values ``x`` (p, T_v, T_l, T_w, H_l) with liquid volume ``V_l``."""
+    """(M, E, h_v, h_l, m_v) at channel values ``x`` (p, T_v, T_l, T_w, H_l) with liquid volume ``V_l``."""
     p, T_v, T_l = x[0], x[1], x[2]
     rv, uv, hv = thermo.vapor(p, T_v)
     rl, ul, hl = thermo.liquid(p, T_l)
     m_v, m_l = rv * (V_tank - V_l), rl * V_l
-    return m_v + m_l, m_v * uv + m_l * ul + C_w * wall_T, hv, hl
+    return m_v + m_l, m_v * uv + m_l * ul + C_w * wall_T, hv, hl, m_v
 
 
 def _liquid_volume_for_mass(thermo: _Thermo, V_tank: float, x: np.ndarray, M: float) -> float:
@@ -537,8 +538,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     Jm, Je = np.zeros((n, 5)), np.zeros((n, 5))
     for k in range(n):
         x = vals[k]
-        Ms[k], Es[k], hvs[k], hls[k] = _inventory(thermo, V_tank, x, V_l[k], C_w, x[3] if wall_ok else x[2])
-        mvs[k] = thermo.vapor(x[0], x[1])[0] * (V_tank - V_l[k])
+        Ms[k], Es[k], hvs[k], hls[k], mvs[k] = _inventory(thermo, V_tank, x, V_l[k], C_w, x[3] if wall_ok else x[2])
         for j, c in enumerate(OBS_CHANNELS):
             if fits[c] is None or (c == "H_l_m" and not level_ok) or (c == "T_w_K" and not wall_ok):
                 continue
@@ -547,8 +547,8 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
             xp[j] += step
             xm[j] -= step
             Vp, Vm = (volumes(np.array([xp[4], xm[4]])) if c == "H_l_m" else (V_l[k], V_l[k]))
-            Mp, Ep, _, hlp = _inventory(thermo, V_tank, xp, float(Vp), C_w, xp[3] if wall_ok else xp[2])
-            Mm, Em, _, hlm = _inventory(thermo, V_tank, xm, float(Vm), C_w, xm[3] if wall_ok else xm[2])
+            Mp, Ep, _, hlp, _ = _inventory(thermo, V_tank, xp, float(Vp), C_w, xp[3] if wall_ok else xp[2])
+            Mm, Em, _, hlm, _ = _inventory(thermo, V_tank, xm, float(Vm), C_w, xm[3] if wall_ok else xm[2])
             Jm[k, j], Je[k, j] = (Mp - Mm) / (2 * step), (Ep - Em) / (2 * step)
             if c == "T_l_K":
                 dhl[k] = (hlp - hlm) / (2 * step)
@@ -686,9 +686,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     v = np.array([e.value for e in per])
     chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
     ini = run.initial
-    # The inert gas's partial pressure cannot exceed the pressure less the liquid's saturation
-    # pressure (the liquid surface sits at saturation of the fluid's partial pressure).
-    ullage = (ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
+    ullage = _Ullage(ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
     findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level, ullage)
     # The nuisances as the explanation the findings rest on estimates them.
     s = sols[chosen] if chosen in sols else general
@@ -840,12 +838,25 @@ def _consistency(thermo: _Thermo, rows, config: AuditConfig) -> tuple[list[tuple
     return out, inert
 
 
-def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level, ullage=None):
+class _Ullage(NamedTuple):
+    """The ullage at the start, for an inert gas: its partial pressure is stated from ``p_Pa``,
+    ``T_v_K`` and ``V_v_m3``, and may not exceed ``room_Pa`` (the pressure less the liquid's
+    saturation pressure: the liquid surface sits at saturation of the fluid's partial pressure)."""
+
+    p_Pa: float
+    T_v_K: float
+    V_v_m3: float
+    room_Pa: float
+
+    def partial_pressure_Pa(self, n_mol: float) -> float:
+        return n_mol * R_J_PER_MOLK * self.T_v_K / self.V_v_m3
+
+
+def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level, ullage: _Ullage | None = None):
     """The findings of the balances (module docstring, step 6) and the hypothesis they rest on ("" for none).
 
-    ``ullage``: (p [Pa], T_v [K], V_v [m3], room [Pa]) at the start: an inert gas's partial pressure
-    is stated from the first three, and an amount whose partial pressure exceeds ``room`` (the
-    pressure less the liquid's saturation pressure) by three standard errors is inadmissible.
+    ``ullage``: where given, an inert gas amount whose partial pressure exceeds ``ullage.room_Pa``
+    by three standard errors is inadmissible, and a named one is stated as a partial pressure.
     """
     out: list[InventoryFinding] = []
     chosen = ""
@@ -855,9 +866,8 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
     admissible = [h for h in hyps.values()
                   if h.name not in ("vapor_leak", "liquid_leak", "noncondensable_gas") or h.estimate.value > 0]
     if ullage is not None:
-        p, T_v, V_v, room = ullage
         admissible = [h for h in admissible if h.name != "noncondensable_gas"
-                      or (h.estimate.value - 3 * h.estimate.std) * R_J_PER_MOLK * T_v / V_v <= room]
+                      or ullage.partial_pressure_Pa(h.estimate.value - 3 * h.estimate.std) <= ullage.room_Pa]
     free_mass = mass is not None and abs(mass.z) >= z
     free_heat = abs(heat.z) >= z
     if admissible:
@@ -904,14 +914,13 @@ def _heat_candidates(heat: Estimate) -> tuple[str, ...]:
     return HEAT_CANDIDATES if heat.value > 0 else ()
 
 
-def _single(h: Hypothesis, note: str = "", ullage=None) -> InventoryFinding:
+def _single(h: Hypothesis, note: str = "", ullage: _Ullage | None = None) -> InventoryFinding:
     e = h.estimate
     if h.name == "noncondensable_gas":
         share = ""
         if ullage is not None:
-            p, T_v, V_v, _ = ullage
-            p_in = e.value * R_J_PER_MOLK * T_v / V_v
-            share = f" (a partial pressure of {p_in:.3g} Pa at the start, {p_in / p:.0%} of the pressure)"
+            p_in = ullage.partial_pressure_Pa(e.value)
+            share = f" (a partial pressure of {p_in:.3g} Pa at the start, {p_in / ullage.p_Pa:.0%} of the pressure)"
         return InventoryFinding(h.name, e, "mol", (h.name,),
                                 f"{e.value:.3g} +- {e.std:.2g} mol of inert gas (helium) in the ullage{share}: the "
                                 "vents meter more mass than the sensors' inventory loses, as a heavier gas counted as "
