@@ -14,11 +14,18 @@ floor; then the stricter check of the final agent simulated over the whole run f
 (RMSE over the training part and the held-out part, and its cost over the training part); and
 the real-time factor of the window updates (window length over update time: >= 1 is real time).
 
+``--simulator cryo`` takes the runs from ``tests/cryo_sim.py`` instead, a third simulator
+sharing no code with tankode or the other two, with laws of its own (Churchill-Chu walls, a
+Globe-Dropkin interface, a surface layer over the bulk liquid, wet and dry wall nodes whose
+split at the start is its own, nucleate boiling) and other fluids: a 2 m3 nitrogen dewar with
+2:1 heads (vent, drain), an 8 m3 hydrogen horizontal cylinder (drain, vent, sloshing) and a
+30 m3 methane sphere (warm-gas pressurisation, sloshing, fill).
+
 The simulator is run through its command line (``python tests/nodal_sim.py``), as a user's data
 would arrive: as files.
 
     python experiments/foreign_assimilation.py [--quick] [--out results/foreign_assimilation]
-        [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
+        [--simulator nodal|cryo] [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
 
 ``--seeds`` trains one agent per seed (initial weights and replay draws) on the same run, to
 separate what the data teach from what one draw of the initial weights does.
@@ -40,8 +47,11 @@ from tankode.run_io import read_run
 from trainers.assimilate import AssimilationConfig
 from trainers.evaluate import hold_out
 
-SIMULATOR = Path(__file__).resolve().parents[1] / "tests" / "nodal_sim.py"
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+SIMULATORS = {"nodal": TESTS / "nodal_sim.py", "cryo": TESTS / "cryo_sim.py"}
 LAWS = ("paper_printed", "mcadams", "slosh_energy")
+CRYO_LAW = "cryo_sim"  # the third simulator's own laws (module docstring)
+CRYO_SCENARIOS = ("ln2_dewar", "lh2_hcyl", "lch4_sphere")
 # (scenario, what it holds): four shapes, every operation between them.
 SCENARIOS = (
     ("upright_13m3", "upright cylinder 13.6 m3: heat, warm-gas pressurisation, sloshing, vent, drain"),
@@ -53,10 +63,12 @@ NOISE = "low"  # the simulator's low level: 300 Pa, 0.05 K, 1 mm
 
 
 def make_run(out: Path, scenario: str, law: str, seed: int, duration_s: float | None = None) -> Path:
-    """Write one run of the independent simulator into ``out``; return its JSON path."""
+    """Write one run of an independent simulator into ``out`` (``law`` ``CRYO_LAW``: the third
+    simulator's; else ``tests/nodal_sim.py`` with that law); return its JSON path."""
     name = f"{scenario}_{law}"
-    cmd = [sys.executable, str(SIMULATOR), scenario, "--law", law, "--out", str(out), "--name", name,
-           "--noise", NOISE, "--seed", str(seed)]
+    simulator = SIMULATORS["cryo" if law == CRYO_LAW else "nodal"]
+    cmd = [sys.executable, str(simulator), scenario, "--out", str(out), "--name", name, "--noise", NOISE,
+           "--seed", str(seed)] + ([] if law == CRYO_LAW else ["--law", law])
     if duration_s is not None:
         cmd += ["--duration", str(duration_s)]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
@@ -67,8 +79,11 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one law and one 40-minute run (CI smoke run)")
     ap.add_argument("--out", default="results/foreign_assimilation")
+    ap.add_argument("--simulator", choices=sorted(SIMULATORS), default="nodal",
+                    help="nodal: tests/nodal_sim.py with --laws; cryo: tests/cryo_sim.py, its own laws")
     ap.add_argument("--laws", nargs="+", choices=LAWS, default=list(LAWS))
-    ap.add_argument("--scenarios", nargs="+", choices=[s for s, _ in SCENARIOS], default=[s for s, _ in SCENARIOS])
+    ap.add_argument("--scenarios", nargs="+", choices=[s for s, _ in SCENARIOS] + list(CRYO_SCENARIOS),
+                    help="default: the simulator's scenarios")
     ap.add_argument("--duration", type=float, default=None, help="cut each run to this many seconds (default: whole)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="agent seeds (AssimilationConfig.seed: initial weights, replay draws); one row per seed")
@@ -76,13 +91,18 @@ def main(argv=None) -> dict:
     quick, out = args.quick, Path(args.out)
     data = out / "runs"
     data.mkdir(parents=True, exist_ok=True)
-    plan = [(s, law) for law in args.laws for s in args.scenarios] if not quick else [("upright_13m3", "mcadams")]
+    cryo = args.simulator == "cryo"
+    names = list(CRYO_SCENARIOS) if cryo else [s for s, _ in SCENARIOS]
+    scenarios = args.scenarios or names
+    if any(s not in names for s in scenarios):
+        ap.error(f"--simulator {args.simulator} has the scenarios {names}, got {scenarios}")
+    laws = [CRYO_LAW] if cryo else args.laws
+    plan = [(s, law) for law in laws for s in scenarios] if not quick else [("upright_13m3", "mcadams")]
     duration_s = 2400.0 if quick else args.duration
     rows = []
-    names = [s for s, _ in SCENARIOS]
     for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
         config = AssimilationConfig(seed=agent_seed)
-        seed = LAWS.index(law) * len(names) + names.index(scenario)  # the same run whatever the selection
+        seed = (0 if cryo else LAWS.index(law)) * len(names) + names.index(scenario)  # the same run whatever the selection
         path = make_run(data, scenario, law, seed=seed, duration_s=duration_s)
         run = read_run(path)
         start = time.perf_counter()

@@ -62,7 +62,7 @@ from .bulk import BulkPhaseChange
 from .closures.base import Closure, ClosureInputs
 from .errors import ImpossibleState
 from .forcing import Forcing
-from .mechanisms import Mechanism
+from .mechanisms import Mechanism, Start
 from .state import N_STATE, STATE_NAMES
 
 
@@ -168,7 +168,12 @@ class TankModel(nn.Module):
         """The model state ``(env, n_state)``: the tank's ``s0`` ``(env, 7)`` and the mechanisms' initial states."""
         if s0.shape[-1] != N_STATE:
             raise ValueError(f"tank state must have {N_STATE} components, got {tuple(s0.shape)}")
-        return torch.cat([s0, *(m.initial_state(s0) for m in self.mechanisms)], dim=-1)
+        if not self.mechanisms:
+            return s0
+        m_l, u_l, V_l = s0[..., 1], s0[..., 3], s0[..., 6]
+        A_wl, A_wv = self.geometry.wetted_areas_m2(self.geometry.level_at_volume(V_l))
+        start = Start(T_l_K=self.fluid.liquid(u_l, m_l / V_l).T, A_wv_m2=A_wv, A_wl_m2=A_wl)
+        return torch.cat([s0, *(m.initial_state(s0, start) for m in self.mechanisms)], dim=-1)
 
     def closure_inputs(self, s: Tensor, forcing: Forcing) -> ClosureInputs:
         """What the closure sees at state ``s`` ``(env, n_state)`` under the applied ``forcing``."""

@@ -383,6 +383,29 @@ def test_diffusive_layer_grows_as_a_conduction_depth_and_keeps_the_delivered_hea
     assert float(grown[-1]) == pytest.approx(2 * D * 1800.0, rel=0.03) and float(traj[-1, 8]) > 0.005
 
 
+def test_two_node_wall_start_share_splits_the_measured_mean_between_the_nodes():
+    """start_share 0: a uniform wall; 1: the wetted node at the liquid's temperature and the dry
+    node holding the rest of the sensor's mean; the mean, the energy and the observation stay
+    the tank's; at R_s = 0 (absent) the share places nothing."""
+    base, s0, geom = _tank()
+    T_l = base.fluid.liquid(s0[:, 3], s0[:, 1] / s0[:, 6]).T
+    T_w = s0[:, 4]
+    A_wl, A_wv = geom.wetted_areas_m2(geom.level_at_volume(s0[:, 6]))
+    a_d = A_wv / (A_wv + A_wl)
+    for share in (0.0, 0.5, 1.0):
+        model, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=10.0, start_share=share)])
+        s = model.initial_state(s0)
+        x = s[:, -1]
+        T_d, T_ww = T_w + (1 - a_d) * x, T_w - a_d * x
+        assert torch.allclose(a_d * T_d + (1 - a_d) * T_ww, T_w, rtol=1e-12)  # the sensor's mean
+        assert torch.allclose(T_ww, T_w - share * (T_w - T_l), rtol=1e-12)
+        assert torch.equal(model.observe(s), base.observe(s0))
+        assert torch.allclose(model.total_energy_J(s[None]), base.total_energy_J(s0[None]), rtol=1e-14)
+    assert float(x) > 5.0  # 4.5 K of wall over liquid, 40 % dry: the dry node 6.8 K above the wetted
+    absent, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=0.0, start_share=1.0)])
+    assert torch.equal(absent.initial_state(s0)[:, -1], torch.zeros(1, dtype=torch.float64))
+
+
 def test_two_node_wall_nodes_follow_their_balances_and_the_tank_conserves_energy():
     """The dry node's balance holds at a state with the nodes apart (``T_d``, ``T_ww`` rebuilt
     from the model's ``dT_w`` and ``dx``); R_s = 0 is the baseline; a heat load warms the dry

@@ -50,12 +50,22 @@ class GroupedAssimilator(Assimilator):
         self.rhs_evals = [0] * len(self.groups)
         # Each group's initial state and scales from its own runs, as its rank computes them (a
         # batched function of 4 tanks and of 2 can differ in the last bit: vectorised lanes).
-        order = torch.argsort(torch.tensor([i for g in self.groups for i in g]))
-        s0 = [self._submodel(self.model, g).initial_state(f.initial_state(self.model.mechanisms))
-              for g, f in enumerate(self._fleets)]
-        self.s0 = torch.cat(s0, dim=0)[order]
+        s0 = self._group_start_states()
+        self.s0 = torch.cat(s0, dim=0)[self._order]
         self.scale = torch.cat([state_scale(s, f.geometry.volume_m3, self.model.extra_state_scales)
-                                for s, f in zip(s0, self._fleets)], dim=0)[order]
+                                for s, f in zip(s0, self._fleets)], dim=0)[self._order]
+
+    @property
+    def _order(self) -> Tensor:
+        """The fleet's environment order from the groups' concatenation."""
+        return torch.argsort(torch.tensor([i for g in self.groups for i in g]))
+
+    def _group_start_states(self) -> list[Tensor]:
+        return [self._submodel(self.model, g).initial_state(f.initial_state(self.model.mechanisms))
+                for g, f in enumerate(self._fleets)]
+
+    def _start_state(self) -> Tensor:
+        return torch.cat(self._group_start_states(), dim=0)[self._order]
 
     def _submodel(self, model: TankModel, g: int) -> TankModel:
         return model.on(self._fleets[g])

@@ -8,7 +8,8 @@ named mechanisms' parameters together with the weights, inside their physical bo
 or an unknown wall heat capacity (``wall_heat_capacity_error``) is estimated from the training
 data rather than chosen beforehand.
 
-The trained variable is ``xi = value / Param.scale`` (one per parameter, shared by every
+The trained variable is ``xi = value / Param.scale`` (one per parameter but those marked
+``Param.initial``, which set only the first state and have no slope in a carried window; shared by every
 environment: one tank's physics), so that one step of the optimiser moves a parameter in units
 of its typical size, as the weights move in units of 1. The mechanism reads ``xi * scale``; it
 is re-applied before every forward pass because the optimiser updates ``xi`` in place. ``xi``
@@ -74,14 +75,19 @@ class TrainedMechanisms:
                 raise ValueError(f"train_mechanisms: {m.id!r} has per-environment values; one value per "
                                  "parameter is trained")
             for p, v in zip(m.params, m.value.tolist()):
-                if not p.lower < v < p.upper:
+                if not p.initial and not p.lower < v < p.upper:
                     raise ValueError(f"train_mechanisms: {m.id} {p.name} = {v:g} starts on its bound "
                                      f"[{p.lower:g}, {p.upper:g}] {p.unit}; the bounded optimiser has no slope "
                                      f"there: start it strictly inside (e.g. {m.id}:{p.name}={p.scale:g})")
-        self.scales = [torch.tensor([p.scale for p in m.params], dtype=torch.float64) for m in self.mechanisms]
-        self.lower = [torch.tensor([p.lower for p in m.params], dtype=torch.float64) for m in self.mechanisms]
-        self.upper = [torch.tensor([p.upper for p in m.params], dtype=torch.float64) for m in self.mechanisms]
-        self.xi = [nn.Parameter((m.value.detach() / s).clone()) for m, s in zip(self.mechanisms, self.scales)]
+        # An initial parameter (Param.initial) is not trained: it sets only the first state.
+        self.index = [torch.tensor([i for i, p in enumerate(m.params) if not p.initial], dtype=torch.long)
+                      for m in self.mechanisms]
+        kept = [[p for p in m.params if not p.initial] for m in self.mechanisms]
+        self.scales = [torch.tensor([p.scale for p in ps], dtype=torch.float64) for ps in kept]
+        self.lower = [torch.tensor([p.lower for p in ps], dtype=torch.float64) for ps in kept]
+        self.upper = [torch.tensor([p.upper for p in ps], dtype=torch.float64) for ps in kept]
+        self.xi = [nn.Parameter((m.value.detach()[i] / s).clone())
+                   for m, i, s in zip(self.mechanisms, self.index, self.scales)]
         # Registered on the mechanism, so that the model's parameters include it: the adjoint
         # integrates the sensitivities of exactly those (torchdiffeq's adjoint_params), and a
         # tensor outside them would get no gradient from Adjoint().
@@ -99,16 +105,16 @@ class TrainedMechanisms:
 
     def apply(self) -> None:
         """Set every trained mechanism's parameters from ``xi`` (differentiably, for the next forward pass)."""
-        for m, x, s in zip(self.mechanisms, self.xi, self.scales):
-            m.value = x * s
+        for m, i, x, s in zip(self.mechanisms, self.index, self.xi, self.scales):
+            m.value = m.value.detach().index_put((i,), x * s)
 
     def settle(self) -> None:
         """Set the parameters from ``xi`` without a graph (after an update: for saving and simulating)."""
         with torch.no_grad():
-            for m, x, s, lo, hi in zip(self.mechanisms, self.xi, self.scales, self.lower, self.upper):
+            for m, i, x, s, lo, hi in zip(self.mechanisms, self.index, self.xi, self.scales, self.lower, self.upper):
                 # xi stays in its box (the bounded optimiser's map); the clamp only absorbs the
                 # rounding of xi * scale at a bound, which set_values would otherwise refuse
-                m.set_values((x * s).clamp(lo, hi))
+                m.set_values(m.value.detach().index_put((i,), (x * s).clamp(lo, hi)))
 
     def values(self) -> dict[str, dict[str, float]]:
         """The current values, ``{id: {param: value}}`` (SI units)."""

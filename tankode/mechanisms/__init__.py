@@ -5,7 +5,7 @@
 
 from __future__ import annotations
 
-from .base import Mechanism, Param, StateVar
+from .base import Mechanism, Param, Start, StateVar
 from .boundary_layer import BoundaryLayerStratification
 from .dry_wall import DryWallHeating
 from .dry_wall_node import DryWallNode
@@ -51,7 +51,7 @@ def mechanisms_from_spec(spec) -> list[Mechanism]:
 
 
 __all__ = [
-    "MECHANISMS", "Mechanism", "Param", "StateVar", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
+    "MECHANISMS", "Mechanism", "Param", "Start", "StateVar", "make_mechanism", "mechanisms_spec", "mechanisms_from_spec",
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
     "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode", "TwoNodeWall",

@@ -21,7 +21,8 @@ It acts through hooks of ``TankModel``, each a no-op by default:
 Own states. A mechanism may carry ``states`` (a tuple of ``StateVar``) that the ODE integrates
 with the tank's: the model's state is then ``(env, 7 + n)``, the mechanisms' states after the
 tank's, in the order of the model's mechanisms. They start at ``initial_state`` (0: nothing
-accumulated yet) and every hook that may depend on them receives the mechanism's own slice
+accumulated yet, unless an ``initial`` parameter says otherwise; it receives the ``Start``
+of the tank: the liquid's temperature and the wetted and dry wall areas) and every hook that may depend on them receives the mechanism's own slice
 ``z`` ``(env, n_states)`` (``(env, 0)`` for a mechanism without states). With every parameter at
 0 a state must stay at 0, so that the baseline is still the extended model at 0.
 
@@ -41,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import torch
 from torch import Tensor, nn
@@ -59,6 +60,10 @@ class Param:
         lower, upper: physical bounds (the box of the fit); 0 is inside or on the boundary.
         scale: a typical magnitude, the unit of the normalised fit variable and of its
             finite-difference step (the fit is scale-invariant otherwise).
+        initial: the parameter sets only the mechanism's initial state (an unmeasured part of
+            the tank's state at the first time stamp). The assimilation chooses it from the
+            first window's data rather than training it with the weights: a window that starts
+            from a carried state has no slope in it.
     """
 
     name: str
@@ -66,6 +71,7 @@ class Param:
     lower: float
     upper: float
     scale: float
+    initial: bool = False
 
     def __post_init__(self):
         if not (self.lower <= 0.0 <= self.upper and self.scale > 0 and math.isfinite(self.scale)):
@@ -89,6 +95,14 @@ class StateVar:
     def __post_init__(self):
         if not (self.scale > 0 and math.isfinite(self.scale)):
             raise ValueError(f"state {self.name}: scale must be positive and finite, got {self.scale}")
+
+
+class Start(NamedTuple):
+    """What a mechanism's initial state may depend on besides the tank's state, each ``(env,)``."""
+
+    T_l_K: Tensor
+    A_wv_m2: Tensor  # the dry wall's area
+    A_wl_m2: Tensor  # the wetted wall's area
 
 
 class Mechanism(nn.Module):
@@ -172,8 +186,9 @@ class Mechanism(nn.Module):
         """How much warmer than the bulk liquid the liquid at the interface is (K), given own states ``z``."""
         return 0.0
 
-    def initial_state(self, s0: Tensor) -> Tensor:
-        """Own states ``(env, n_states)`` at the start, for the tank's initial state ``s0`` ``(env, 7)``."""
+    def initial_state(self, s0: Tensor, start: Start) -> Tensor:
+        """Own states ``(env, n_states)`` at the start, for the tank's initial state ``s0`` ``(env, 7)``
+        (``start``: its liquid temperature and wall areas)."""
         return s0.new_zeros(s0.shape[0], len(self.states))
 
     def state_derivative(self, z: Tensor, s: Tensor, forcing: Forcing, fluxes, liquid, tank_rate: Tensor) -> Tensor:
@@ -194,4 +209,4 @@ class Mechanism(nn.Module):
         return 0.0
 
 
-__all__ = ["Mechanism", "Param", "StateVar"]
+__all__ = ["Mechanism", "Param", "Start", "StateVar"]

@@ -46,20 +46,43 @@ class TwoNodeWall(Mechanism):
     superheated, most at low fill; a warm gas injection heats the dry wall, which then gives
     the heat back to the ullage over minutes to hours; ``T_w`` (the mean) lags the liquid.
 
+    Start. A wall sensor (the run format's ``T_w``) reads the mean, not the split between the
+    nodes. ``start_share`` ``c`` (in [0, 1], an ``initial`` parameter) places it::
+
+        T_ww(0) = T_w - c (T_w - T_l),   T_d(0) = T_w + c (a_w / a_d) (T_w - T_l),
+
+    i.e. ``x(0) = c (T_w - T_l) / a_d``: at 0 the wall starts uniform (a lumped wall, as the
+    paper's cases have it), at 1 the wetted wall starts at the liquid's temperature and the dry
+    wall holds the rest of the measured mean (a tank at rest under a heat load, where the
+    liquid's convection holds the wetted wall within a fraction of a kelvin of it). The mean is
+    the sensor's in every case. Which one a tank has is for its data to say: the assimilation
+    fits its first window from both ends and keeps the split only where it fits clearly better
+    (``trainers.assimilate.Assimilator._place_wall_start``; measured in ``experiments/README.md``,
+    section 5).
+
     Limits: one node per part (no profile along the wall); the ambient flux uniform over the
     wall; other mechanisms' heat into the wall goes to the mean, not to a node; each node keeps
-    at least 2 % of the capacity; the wall starts uniform (``x = 0``).
+    at least 2 % of the capacity, so at a nearly full tank ``x(0)`` is at most 50 times the
+    wall's excess over the liquid.
     """
 
     id = "two_node_wall"
-    params = (Param("R_sheet_K_per_W", "K/W", 0.0, 1.0e4, 10.0),)
+    params = (Param("R_sheet_K_per_W", "K/W", 0.0, 1.0e4, 10.0),
+              Param("start_share", "1", 0.0, 1.0, 1.0, initial=True))
     signature = "T_v above T_l under a heat load and after warm-gas injection; T_w (the mean) lags"
     states = (StateVar("dT_dry_wet_K", "K", 1.0),)
 
     def _shares(self, fluxes):
+        """(a_d, a_w, A_w) from anything with the two wall areas (``Fluxes``, ``Start``)."""
         A_w = fluxes.A_wv_m2 + fluxes.A_wl_m2
         a_d = (fluxes.A_wv_m2 / A_w).clamp(_MIN_SHARE, 1 - _MIN_SHARE)
         return a_d, 1 - a_d, A_w
+
+    def initial_state(self, s0, start):
+        a_d = self._shares(start)[0]
+        R_s, share = self.param(0, a_d), self.param(1, a_d)
+        x0 = torch.where(R_s > 0, share * (s0[..., 4] - start.T_l_K) / a_d, torch.zeros_like(a_d))
+        return x0.unsqueeze(-1)
 
     def heat_W(self, s, forcing, fluxes, z):
         x = z[..., 0]
