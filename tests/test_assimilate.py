@@ -63,7 +63,7 @@ def test_the_two_node_walls_unmeasured_start_is_read_from_the_first_window(share
     """A tank whose wall starts uniform (0) or with its wetted part at the liquid's temperature
     (1; the sensor reads the same mean 9 K above the liquid), its closure the untrained agent's:
     the assimilation starts the wall as the truth does, and a given wall keeps its start."""
-    run = _short_run(600.0)
+    run = _short_run(300.0)
     truth = [make_mechanism("two_node_wall", R_sheet_K_per_W=10.0, start_share=share)]
     (obs,) = solution_to_runs(run, simulate(run, NaturalConvectionClosure(), mechanisms=truth), noise="high", seed=0)
     a = Assimilator([obs], AssimilationConfig(iters=5))
