@@ -45,7 +45,6 @@ state, the next window's initial state, configuration, reports) therefore resume
 from __future__ import annotations
 
 import copy
-import functools
 import json
 import math
 import time
@@ -390,6 +389,9 @@ START_OFFSET_BOUND_SIGMAS = 30.0
 # A replayed segment spans at least this many sampling intervals of the most sparsely sampled run:
 # a segment between two samples teaches nothing (real tanks, such as MHTB's, log every 5-30 min).
 REPLAY_MIN_SAMPLES = 3
+# K; a two-node wall split by less than this at the start is not split: a wall at the liquid's
+# temperature (as a run without T_w starts) differs from it by the surrogate's rounding of T_l.
+WALL_START_SAME_K = 1e-3
 
 # The forward pass integrated, the gradient's did not: torchdiffeq's adjoint re-integrates the
 # state backwards in time, which diverges where the tank has a fast decaying mode (MHTB's light
@@ -490,9 +492,8 @@ class Assimilator:
         # The replayed segments' length (s), alike on every rank: see AssimilationConfig.replay_s.
         sparsest = float(self.parallel.rows(torch.as_tensor(self.fleet.sampling_intervals_s())).max())
         self.replay_s = max(config.replay_s, REPLAY_MIN_SAMPLES * sparsest)
-        self.wall_start_note = ""
-        if wall_added:
-            self.wall_start_note = self._place_wall_start()
+        # The two-node wall's start is chosen by the first window's update (_place_wall_start).
+        self._wall_start_pending = wall_added
 
     def _start_state(self) -> Tensor:
         """The fleet's initial state ``(env, n_state)`` with the mechanisms' values as they stand."""
@@ -509,7 +510,8 @@ class Assimilator:
         return None if wall is None else float(wall[0].value[wall[1]])
 
     def _place_wall_start(self) -> str:
-        """Set the two-node wall's ``start_share`` (``tankode.mechanisms.TwoNodeWall``) and ``s0``.
+        """Set the two-node wall's ``start_share`` (``tankode.mechanisms.TwoNodeWall``) and ``s0``;
+        called by the first window's update, of a wall the configuration added.
 
         A wall sensor reads the wall's mean; how it divides between the dry and the wetted wall
         at the first time stamp is unmeasured, and it decides the first windows: a dry wall
@@ -518,11 +520,12 @@ class Assimilator:
         lumped wall of the paper's cases) and the wetted wall at the liquid's temperature (1, a
         tank at rest under a heat load), each by the first window's J after the agent is fitted
         to it as its update would (``config.iters`` L-BFGS iterations from the agent as it
-        starts, within the update budget), so that the agent's own error does not decide the
-        wall's. The share 1 is taken only where it fits better by more than the Bayesian
-        information criterion's price of one parameter, ``2 N (J_0 - J_1) > ln(5 N)`` (``N``
-        sample times; ``N J`` is the window's negative log-likelihood): where the first window
-        cannot tell them apart the wall starts uniform. The agent and the trained mechanisms are
+        starts, each within a quarter of the update budget, which counts this choice), so that
+        the agent's own error does not decide the wall's. The share 1 is taken only where it
+        fits better by more than the Bayesian information criterion's price of one parameter,
+        ``2 N (J_0 - J_1) > ln(5 N)`` (``N`` sample times; ``N J`` is the window's negative
+        log-likelihood): where the first window cannot tell them apart the wall starts uniform.
+        With data parallelism every rank compares the fleet's J and takes the same share. The agent and the trained mechanisms are
         put back afterwards; the window's update trains from them. Nothing is compared when the
         wall reads the liquid's temperature (then both are the same start) or the first window
         holds no data, and where a candidate cannot be integrated the wall starts uniform.
@@ -540,16 +543,13 @@ class Assimilator:
             v = wall.value.detach().clone()
             v[col] = share
             wall.set_values(v)
-            return Assimilator._start_state(self)
-
-        # The whole fleet as one ODE: a subclass's groups are not built yet (GroupedAssimilator).
-        whole = functools.partial(Assimilator.predict, self)
+            return self._start_state()
 
         split = place(1.0)
         x_col = self.model.state_names.index("two_node_wall.dT_dry_wet_K")
         t0, t1 = self.windows[0]
         window = Window.from_runs(self.fleet.runs, t0, t1)
-        differ = bool((split[:, x_col].abs() > 1e-9).any())
+        differ = bool((split[:, x_col].abs() > WALL_START_SAME_K).any())
         if not self.parallel.any(differ and len(window) > 0):  # nothing to choose, or no data to choose by
             self.s0 = place(0.0)
             return ""
@@ -566,12 +566,12 @@ class Assimilator:
             s0, start, calls = place(share), time.perf_counter(), [0]
 
             def loss():
-                over = time.perf_counter() - start > cfg.budget_s / 2  # both fits within one budget
+                over = time.perf_counter() - start > cfg.budget_s / 4  # both fits within half the update's
                 if calls[0] > 0 and self.parallel.any(over):
-                    raise StopStep("half the update budget spent")
+                    raise StopStep("a quarter of the update budget spent")
                 calls[0] += 1
                 return self.parallel.data_cost(lambda: cost(self.model.observe(
-                    whole(s0, t0, t_eval, cfg.gradient)[:, obs_index]), window), tensors)
+                    self.predict(s0, t0, t_eval, cfg.gradient)[:, obs_index]), window), tensors)
 
             failed, J = False, float("nan")
             try:
@@ -580,7 +580,7 @@ class Assimilator:
                 opt.step(loss)
                 self.trained.settle()
                 with torch.no_grad():
-                    J = float(cost(self.model.observe(whole(s0, t0, t_eval, NoGradient())[:, obs_index]), window))
+                    J = float(cost(self.model.observe(self.predict(s0, t0, t_eval, NoGradient())[:, obs_index]), window))
             except (SimulationError, StopStep, FloatingPointError):
                 failed = True
             self.closure.load_state_dict(agent)
@@ -730,6 +730,10 @@ class Assimilator:
     def update(self, k: int, s_next: Tensor) -> tuple[WindowReport, Tensor, dict]:
         """Train on window k; return its report, the next fixed window's initial state and the optimiser state."""
         cfg = self.config
+        start = time.perf_counter()  # the wall's start is chosen within the first window's update
+        wall_note = ""
+        if k == 0 and self._wall_start_pending:
+            wall_note, self._wall_start_pending = self._place_wall_start(), False
         t_data0 = self.fleet.t0_s if cfg.mode == "growing" else self.windows[k][0]
         t1 = self.windows[k][1]
         t_start, s_start = self._span(k, s_next)
@@ -738,7 +742,6 @@ class Assimilator:
         # ranks replay from the same times).
         t_eval = self.parallel.times(torch.cat([window.t_s, torch.tensor([t1], dtype=torch.float64)]).unique())
         obs_index = torch.searchsorted(t_eval, window.t_s)
-        start = time.perf_counter()
 
         named = [(n, p) for n, p in self.closure.named_parameters() if p.requires_grad]
         bounds = uniform_box(self.closure, -cfg.weight_bound, cfg.weight_bound)
@@ -815,8 +818,8 @@ class Assimilator:
         # Before the optimiser is built: it may move the weights back (an agent that cannot
         # integrate this window), and BoundedLBFGS holds the weights it starts from.
         before, note = self._cost_before(s_start, t_start, t_eval, obs_index, window)
-        if k == 0 and self.wall_start_note:
-            note = f"{self.wall_start_note}; {note}" if note else self.wall_start_note
+        if wall_note:
+            note = f"{wall_note}; {note}" if note else wall_note
         batch = None
         n_outer, per_step = 1, cfg.iters
         if cfg.batch_fraction < 1.0:

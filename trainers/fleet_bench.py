@@ -143,6 +143,7 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     import torch
     import torch.distributed as dist
 
+    from tankode.mechanisms import make_mechanism
     from tankode.run_io import read_run
 
     from .assimilate import Assimilator
@@ -163,13 +164,17 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     probe_s = time.perf_counter() - t
     if iters is not None:
         config = dataclasses.replace(config, iters=iters)
+    # The two-node wall given, starting uniform: the benchmark times one update, not the first
+    # window's choice of the wall's start (Assimilator._place_wall_start).
+    wall = (make_mechanism("two_node_wall", R_sheet_K_per_W=config.wall_R_sheet_K_per_W),) \
+        if config.wall == "two_node" else ()
     if groups > 1:  # this rank's runs integrated in groups cut by their probed cost
         from .grouped import GroupedAssimilator
 
         local_groups = shard_by_cost(rates[list(shards[rank])], groups, restarts=restarts[list(shards[rank])])
-        assim = GroupedAssimilator(local, config, local_groups, parallel=parallel)
+        assim = GroupedAssimilator(local, config, local_groups, parallel=parallel, mechanisms=wall)
     else:
-        assim = Assimilator(local, config, parallel=parallel)
+        assim = Assimilator(local, config, parallel=parallel, mechanisms=wall)
     # Counted on the class: the grouped assimilator integrates each group with its own model
     # (``TankModel.on``), which an instance's counter would not see.
     from tankode.model import TankModel
