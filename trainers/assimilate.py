@@ -159,7 +159,8 @@ class AssimilationConfig:
         wall: ``"two_node"``: the dry and the wetted wall at their own temperatures
             (``tankode.mechanisms.TwoNodeWall``), the shell's sheet resistance trained with the
             agent and the split of the measured mean between them at the start taken from the
-            first window (``Assimilator._place_wall_start``); ``"lumped"``: the paper's one wall temperature.
+            first window (``Assimilator._place_wall_start``); ``"lumped"``: the paper's one wall
+            temperature.
         wall_R_sheet_K_per_W: the sheet resistance the two-node wall starts from (K/W;
             aluminium of 10 mm at 20 K; the training moves it).
         carry_over: how an update starts from the agent the previous windows left:
@@ -426,6 +427,15 @@ def _mean_square_change(params, anchor) -> torch.Tensor:
 WINDOW_MIN_SAMPLES = 10
 
 
+def uniform_wall(config: AssimilationConfig) -> tuple[Mechanism, ...]:
+    """The configured wall given to an ``Assimilator``, starting uniform: its first update then
+    does not choose the start (``Assimilator._place_wall_start``); for benchmarks that time
+    updates alone. ``()`` for the lumped wall."""
+    if config.wall != "two_node":
+        return ()
+    return (make_mechanism("two_node_wall", R_sheet_K_per_W=config.wall_R_sheet_K_per_W),)
+
+
 def window_for(runs, window_s: float = AssimilationConfig.window_s) -> float:
     """The window length (s) for ``runs``: ``window_s``, lengthened where needed to
     ``WINDOW_MIN_SAMPLES`` sampling intervals of the most sparsely logged run
@@ -499,15 +509,15 @@ class Assimilator:
         """The fleet's initial state ``(env, n_state)`` with the mechanisms' values as they stand."""
         return self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))
 
-    def _wall_start(self) -> tuple[Mechanism, int] | None:
-        """The two-node wall and the column of its ``start_share``, or None without one."""
-        wall = next((m for m in self.model.mechanisms if m.id == "two_node_wall"), None)
-        return None if wall is None else (wall, [p.name for p in wall.params].index("start_share"))
+    def _wall(self) -> Mechanism | None:
+        """The model's two-node wall, or None without one."""
+        return next((m for m in self.model.mechanisms if m.id == "two_node_wall"), None)
 
-    def _wall_start_share(self) -> float | None:
-        """The two-node wall's ``start_share`` as it stands (None without the wall)."""
-        wall = self._wall_start()
-        return None if wall is None else float(wall[0].value[wall[1]])
+    def _start_wall_at(self, share: float) -> Tensor:
+        """Set the two-node wall's ``start_share``; return the fleet's initial state from it."""
+        wall = self._wall()
+        wall.set_values([share if p.name == "start_share" else v for p, v in zip(wall.params, wall.value.tolist())])
+        return self._start_state()
 
     def _place_wall_start(self) -> str:
         """Set the two-node wall's ``start_share`` (``tankode.mechanisms.TwoNodeWall``) and ``s0``;
@@ -525,8 +535,9 @@ class Assimilator:
         fits better by more than the Bayesian information criterion's price of one parameter,
         ``2 N (J_0 - J_1) > ln(5 N)`` (``N`` sample times; ``N J`` is the window's negative
         log-likelihood): where the first window cannot tell them apart the wall starts uniform.
-        With data parallelism every rank compares the fleet's J and takes the same share. The agent and the trained mechanisms are
-        put back afterwards; the window's update trains from them. Nothing is compared when the
+        With data parallelism every rank compares the fleet's J and takes the same share. The
+        agent and the trained mechanisms are put back afterwards; the window's update trains
+        from them. Nothing is compared when the
         wall reads the liquid's temperature (then both are the same start) or the first window
         holds no data, and where a candidate cannot be integrated the wall starts uniform.
         Returns a note for the log ("" where nothing was compared).
@@ -537,21 +548,13 @@ class Assimilator:
         one leaves the next windows at J 29 and 37 where the uniform one gives 2.5 and 6.8
         (``experiments/README.md``, section 5).
         """
-        wall, col = self._wall_start()
-
-        def place(share: float) -> Tensor:
-            v = wall.value.detach().clone()
-            v[col] = share
-            wall.set_values(v)
-            return self._start_state()
-
-        split = place(1.0)
+        split = self._start_wall_at(1.0)
         x_col = self.model.state_names.index("two_node_wall.dT_dry_wet_K")
         t0, t1 = self.windows[0]
         window = Window.from_runs(self.fleet.runs, t0, t1)
         differ = bool((split[:, x_col].abs() > WALL_START_SAME_K).any())
         if not self.parallel.any(differ and len(window) > 0):  # nothing to choose, or no data to choose by
-            self.s0 = place(0.0)
+            self.s0 = self._start_wall_at(0.0)
             return ""
         cfg = self.config
         t_eval = self.parallel.times(torch.cat([window.t_s, torch.tensor([t1], dtype=torch.float64)]).unique())
@@ -563,7 +566,7 @@ class Assimilator:
         agent, mechanisms = copy.deepcopy(self.closure.state_dict()), self.trained.state_dict()
 
         def fitted(share: float) -> float | None:
-            s0, start, calls = place(share), time.perf_counter(), [0]
+            s0, start, calls = self._start_wall_at(share), time.perf_counter(), [0]
 
             def loss():
                 over = time.perf_counter() - start > cfg.budget_s / 4  # both fits within half the update's
@@ -592,7 +595,7 @@ class Assimilator:
         self.parallel.timings = timings  # they count the updates' evaluations (the note says this one's time)
         n = self.parallel.mean(float(len(window)))
         best = 1.0 if J0 is not None and J1 is not None and 2 * n * (J0 - J1) > math.log(5 * n) else 0.0
-        self.s0 = place(best)
+        self.s0 = self._start_wall_at(best)
         J0s, J1s = ("-" if j is None else f"{j:.4g}" for j in (J0, J1))
         return (f"two-node wall start_share {best:g} (the first window fitted from a uniform wall to J {J0s}, "
                 f"from the wetted wall at the liquid's temperature to J {J1s}; {time.perf_counter() - began:.3g} s)")
@@ -1071,7 +1074,7 @@ class Assimilator:
             "memories": [m.to_payload() for m in self.memories],
             "history": [{"t_s": t, "states": self.parallel.rows(x)} for t, x in self.history],
             "mechanisms": self.trained.state_dict(),
-            "wall_start_share": self._wall_start_share(),
+            "wall_start_share": None if self._wall() is None else self._wall().values_dict()["start_share"],
         }
 
     def _restore(self, ck: dict, result: AssimilationResult) -> tuple[int, Tensor]:
@@ -1094,13 +1097,10 @@ class Assimilator:
         self.memories = [WindowMemory.from_payload(m) for m in ck.get("memories", [])]
         self.history = [(h["t_s"], self.parallel.local_rows(h["states"])) for h in ck.get("history", [])]
         self.trained.load_state_dict(ck.get("mechanisms", {}))
-        share, wall = ck.get("wall_start_share"), self._wall_start()
-        if share is not None and wall is not None:  # the start the windows so far were trained from
-            v = wall[0].value.detach().clone()
-            v[wall[1]] = share
-            wall[0].set_values(v)
-            self.s0 = self._start_state()
+        share = ck.get("wall_start_share")
+        if share is not None and self._wall() is not None:  # the start the windows so far were trained from
+            self.s0 = self._start_wall_at(share)
         return int(ck["next_window"]), self.parallel.local_rows(ck["s_next"])
 
 
-__all__ = ["Assimilator", "AssimilationConfig", "AssimilationResult", "WindowReport", "window_edges"]
+__all__ = ["Assimilator", "AssimilationConfig", "AssimilationResult", "WindowReport", "uniform_wall", "window_edges"]

@@ -7,13 +7,12 @@ import time
 import torch
 
 from tankode.cases import get_case
-from tankode.mechanisms import make_mechanism
 from tankode.schedule import Schedule
 from tankode.simulation import simulate
 from tankode.solver import Adjoint, Backprop, Checkpointed, NoGradient
 from tankode.synthetic import solution_to_runs
 
-from .assimilate import AssimilationConfig, Assimilator
+from .assimilate import AssimilationConfig, Assimilator, uniform_wall
 from .cost import Window, cost
 
 
@@ -38,11 +37,8 @@ def window_update_benchmark(n_tanks: int = 4, iters: int = 20, window_s: float =
                     for mode in ("fixed", "growing", "replay")})
     out = {"n_tanks": n_tanks, "window_s": window_s, "modes": {}}
     for label, config in configs.items():
-        # The two-node wall given, starting uniform (what the first window chooses on case 1): the
-        # benchmark times updates, not that choice (Assimilator._place_wall_start).
-        wall = (make_mechanism("two_node_wall", R_sheet_K_per_W=config.wall_R_sheet_K_per_W),) \
-            if config.wall == "two_node" else ()
-        a = Assimilator(data, config, mechanisms=wall)
+        # Uniform: what the first window chooses on case 1; the benchmark times updates, not that choice.
+        a = Assimilator(data, config, mechanisms=uniform_wall(config))
         _, s_next, _ = a.update(0, a.s0)
         report, _, _ = a.update(1, s_next)
         out["modes"][label] = {

@@ -143,10 +143,9 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     import torch
     import torch.distributed as dist
 
-    from tankode.mechanisms import make_mechanism
     from tankode.run_io import read_run
 
-    from .assimilate import Assimilator
+    from .assimilate import Assimilator, uniform_wall
     from .distributed import DistributedConfig, Launch, shard_by_cost
 
     torch.set_num_threads(1)
@@ -164,10 +163,7 @@ def _worker(folder: str, out: str, groups: int = 1, iters: int | None = None) ->
     probe_s = time.perf_counter() - t
     if iters is not None:
         config = dataclasses.replace(config, iters=iters)
-    # The two-node wall given, starting uniform: the benchmark times one update, not the first
-    # window's choice of the wall's start (Assimilator._place_wall_start).
-    wall = (make_mechanism("two_node_wall", R_sheet_K_per_W=config.wall_R_sheet_K_per_W),) \
-        if config.wall == "two_node" else ()
+    wall = uniform_wall(config)  # the benchmark times one update, not the choice of the wall's start
     if groups > 1:  # this rank's runs integrated in groups cut by their probed cost
         from .grouped import GroupedAssimilator
 

@@ -22,9 +22,10 @@ Own states. A mechanism may carry ``states`` (a tuple of ``StateVar``) that the 
 with the tank's: the model's state is then ``(env, 7 + n)``, the mechanisms' states after the
 tank's, in the order of the model's mechanisms. They start at ``initial_state`` (0: nothing
 accumulated yet, unless an ``initial`` parameter says otherwise; it receives the ``Start``
-of the tank: the liquid's temperature and the wetted and dry wall areas) and every hook that may depend on them receives the mechanism's own slice
-``z`` ``(env, n_states)`` (``(env, 0)`` for a mechanism without states). With every parameter at
-0 a state must stay at 0, so that the baseline is still the extended model at 0.
+of the tank: the liquid's temperature and the wetted and dry wall areas) and every hook that
+may depend on them receives the mechanism's own slice ``z`` ``(env, n_states)`` (``(env, 0)``
+for a mechanism without states). With every parameter at 0 a state must stay at 0, so that
+the baseline is still the extended model at 0.
 
 The first parameter is the mechanism's presence: at 0 the mechanism is absent whatever the
 others, which only shape it (a surface layer's mixing rate); the diagnosis requires it, not the
