@@ -139,8 +139,11 @@ def integrate(
     counter = _Counter()
     names = getattr(model, "state_names", None)
     outputs: list[Tensor] = []
-    if float(t_eval[0]) <= t_start + 1e-9:
-        outputs.append(s0[:, None, :])
+    # Times within 1e-9 s of a segment's end are that end's state, each of them: a caller's
+    # grid may hold two such times (a sample and a segment edge computed from it by rounding).
+    n_start = int((t_eval <= t_start + 1e-9).sum())
+    if n_start:
+        outputs.append(s0[:, None, :].expand(-1, n_start, -1))
     s = s0
     warm = None
     grad_ctx = torch.enable_grad() if gradient.differentiable else torch.no_grad()
@@ -163,8 +166,9 @@ def integrate(
                 raise SimulationError(f"non-finite state in segment [{t0:.6g}, {t1:.6g}] s", counter.last_t,
                                       counter.last_s, names)
             outputs.append(traj[:, 1:-1])
-            if bool(((t_eval - t1).abs() < 1e-9).any()):
-                outputs.append(traj[:, -1:])
+            n_end = int(((t_eval - t1).abs() < 1e-9).sum())
+            if n_end:
+                outputs.append(traj[:, -1:].expand(-1, n_end, -1))
             s = traj[:, -1]
             warm = func.warm_end
     states = torch.cat(outputs, dim=1)

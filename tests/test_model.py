@@ -165,3 +165,15 @@ def test_solver_budget_fails_with_time_and_state():
     model, s0, geom = _tank()
     with pytest.raises(SimulationError, match=r"at t = .* s in state\n  env 0: m_v_kg="):
         _run(model, s0, geom, Forcing.rest(1), solver=AdaptiveRK(rtol=1e-12, atol=1e-14, max_rhs_evals=50))
+
+
+def test_every_requested_time_gets_its_state_when_two_lie_within_rounding_of_a_segment_edge():
+    # a replayed segment's end computed from a sample time may differ from it by a rounding
+    model, s0, geom = _tank()
+    edge = 2341.5
+    t = torch.tensor([0.0, 1e-13, 1000.0, edge, edge + 4.5e-13], dtype=torch.float64)
+    states, _ = integrate(model, s0, [(0.0, 1000.0), (1000.0, edge + 4.5e-13)], lambda t0, s: Forcing.rest(1), t,
+                          state_scale(s0, geom.volume_m3), TIGHT, NoGradient())
+    assert states.shape == (1, 5, 7)
+    assert torch.equal(states[:, 0], s0) and torch.equal(states[:, 1], s0) and torch.equal(states[:, 3], states[:, 4])
+    assert not torch.equal(states[:, 2], states[:, 3])
