@@ -29,7 +29,9 @@ onto a colder wall by a few tenths of a kelvin.
 
 Limits: one relaxation time for nucleation and growth, no droplet or bubble populations, fog
 that joins the liquid at once (no rain-out delay); the thresholds stand for the nucleation
-superheat and supersaturation, engineering values, not measured ones.
+superheat and supersaturation, engineering values, not measured ones. How much of a tank's
+liquid boils at saturation instead differs between tanks; the assimilation learns it from the
+data (``tankode.mechanisms.SaturatedBoiling``, ``AssimilationConfig.boiling``).
 """
 
 from __future__ import annotations

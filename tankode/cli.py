@@ -164,6 +164,7 @@ def cmd_assimilate(args) -> int:
                                 replay_s=args.replay_s or AssimilationConfig.replay_s,
                                 update_budget_s=args.update_budget,
                                 wall=args.wall or AssimilationConfig.wall,
+                                boiling=args.boiling or AssimilationConfig.boiling,
                                 carry_over=args.carry_over or AssimilationConfig.carry_over,
                                 agent_features=(_input_set(args.inputs) if args.inputs is not None
                                                 else AssimilationConfig.agent_features))
@@ -348,6 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the wall: dry and wetted parts at their own temperatures, the shell's sheet resistance "
                         "trained (two_node), or one lumped temperature (lumped, the paper's); default: "
                         "AssimilationConfig's")
+    a.add_argument("--boiling", choices=("learned", "bulk"), default=None,
+                   help="the liquid's flashing: a share of the liquid boiling at saturation, trained (learned), or "
+                        "only the bulk's flash 0.2 K past saturation (bulk); default: AssimilationConfig's")
     a.add_argument("--carry-over", choices=("validated", "integrable"), default=None,
                    help="how an update starts from the previous windows' agent: checked on the new window against "
                         "the initial agent and shrunk towards it where it predicts worse (validated), or as it is "

@@ -44,7 +44,8 @@ paper has no such term.
 Mechanisms. Effects the baseline leaves out (``tankode.mechanisms``: heat leaks, unmetered
 losses, sensor biases, ...) enter through hooks: the forcing actually applied, extra heat into
 each control volume (added to ``e_v``, ``e_l`` and the wall balance, so conservation holds with
-them as external inputs), a liquid surface warmer than the bulk in ``Q_li``, a factor on
+them as external inputs), a liquid surface warmer than the bulk in ``Q_li``, liquid flashing
+beside the bulk's, a factor on
 ``C_w`` and an offset in the observed pressure. A mechanism may also carry states of its own
 (a surface layer's temperature excess), integrated with the tank's: the model's state is then
 ``(env, 7 + n)``, the mechanisms' states after the 7 of ``tankode.state``. With every parameter
@@ -306,14 +307,18 @@ class TankModel(nn.Module):
                + J * f.h_vsat_J_per_kg + f.Q_wv_W - f.Q_vi_W + q_v)
         e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
                - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W + q_l)
-        if self.bulk is not None:  # fog leaves the vapour as saturated liquid, flash the liquid as vapour
+        fog, flash = 0.0, 0.0
+        if self.bulk is not None:
             domain = getattr(self.fluid, "domain", None)  # analytic test fluids have none
             fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl,
                                               None if domain is None else torch.as_tensor(domain.margin_K(pv.T_sat.detach())))
-            dm_v = dm_v - fog + flash
-            dm_l = dm_l + fog - flash
-            e_v = e_v - fog * f.h_lsat_J_per_kg + flash * f.h_vsat_J_per_kg
-            e_l = e_l + fog * f.h_lsat_J_per_kg - flash * f.h_vsat_J_per_kg
+        for m, z in zip(self.mechanisms, self.mechanism_states(s)):
+            flash = flash + m.flash_kg_s(m_v, m_l, pv, pl, z)
+        # fog leaves the vapour as saturated liquid, flash the liquid as saturated vapour
+        dm_v = dm_v - fog + flash
+        dm_l = dm_l + fog - flash
+        e_v = e_v - fog * f.h_lsat_J_per_kg + flash * f.h_vsat_J_per_kg
+        e_l = e_l + fog * f.h_lsat_J_per_kg - flash * f.h_vsat_J_per_kg
         # dp/dt of each phase is affine in W = dV_l/dt: a + b W (see module docstring).
         rho_v = m_v / V_v
         rho_l = m_l / V_l

@@ -307,7 +307,7 @@ def test_every_default_candidate_has_a_hidden_mechanism_test():
     assert sorted(h[1] for h in HIDDEN) == sorted(DEFAULT_CANDIDATES)
     # the mechanisms left out of the defaults (opt-in: experiments/README.md says why)
     assert set(MECHANISMS) - set(DEFAULT_CANDIDATES) == {"surface_layer", "boundary_layer_stratification", "growing_layer",
-                                                       "diffusive_layer", "two_node_wall"}
+                                                       "diffusive_layer", "two_node_wall", "saturated_boiling"}
 
 
 def _data(case: str, mechanism: str | None, value: float, seed: int, noise: str = "low"):

@@ -442,3 +442,43 @@ def test_two_node_wall_nodes_follow_their_balances_and_the_tank_conserves_energy
     lump, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=0.0)])
     _, s_lump = _run(lump, s0, geom, f)
     assert torch.allclose(s_lump[:, :7], sb, rtol=1e-9) and torch.all(s_lump[:, -1] == 0)
+
+
+def test_saturated_boiling_flashes_its_share_of_the_liquid_past_saturation_and_conserves_mass_and_energy():
+    from tankode.bulk import BulkPhaseChange
+    from tankode.mechanisms.saturated_boiling import THRESHOLD_K
+
+    fluid = AnalyticFluid()
+    model0, _, geom = _tank()
+    T_sat = float(fluid._saturation(torch.tensor(3e5, dtype=torch.float64))[0])
+    # a liquid 0.15 K past saturation: below the bulk's 0.2 K threshold, past the boiling share's
+    s0 = analytic_state(fluid, geom, 3e5, T_sat + 1.0, T_sat + 0.15, T_sat + 0.15, 0.6)
+    f = Forcing.rest(1)
+    flows, pv, pl = model0.fluxes(s0, f)
+    m_v, m_l = s0[:, 0], s0[:, 1]
+    _, bulk = BulkPhaseChange(flash_threshold_K=THRESHOLD_K).rates_kg_s(m_v, m_l, pv, pl)
+    assert float(bulk) > 0
+    d0 = model0(torch.tensor(0.0), s0, f)
+    for share in (0.3, 1.0):
+        model, _, _ = _tank([make_mechanism("saturated_boiling", share=share)])
+        d = model(torch.tensor(0.0), s0, f)
+        # the share's flash moves liquid into the vapour as saturated vapour, beside the baseline's
+        assert torch.allclose(d[:, 0] - d0[:, 0], share * bulk, rtol=1e-12)
+        assert torch.allclose(d[:, 1] - d0[:, 1], -share * bulk, rtol=1e-12)
+        assert torch.allclose(m_l * (d[:, 3] - d0[:, 3]) + s0[:, 3] * (d[:, 1] - d0[:, 1]) + pv.p * (d[:, 6] - d0[:, 6]),
+                              -share * bulk * pv.h_vsat, rtol=1e-9)
+    # integrated: a closed, insulated tank keeps its mass and energy, and its liquid ends nearer
+    # saturation than the baseline's
+    model, _, _ = _tank([make_mechanism("saturated_boiling", share=1.0)])
+    t, s = _run(model, s0, geom, f, t_end=600.0)
+    E = model.total_energy_J(s[None])[0]
+    mass = s[:, 0] + s[:, 1]
+    assert (E - E[0]).abs().max() / E[0].abs() < 1e-9 and (mass - mass[0]).abs().max() / mass[0] < 1e-9
+    _, sb = _run(model0, s0, geom, f, t_end=600.0)
+
+    def superheat(states):
+        _, v, liq = model0.fluxes(states[-1:], f)
+        return float(liq.T - v.T_sat)
+
+    assert superheat(s) < 0.5 * superheat(sb) and superheat(s) < THRESHOLD_K + 0.02
+

@@ -125,7 +125,7 @@ class Thresholds:
 # ``--candidates``), with a fit started from a layer. ``dry_wall_node`` is a default candidate: hidden
 # in case 3 it is found (tests/test_diagnosis.py).
 OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer",
-                           "two_node_wall")
+                           "two_node_wall", "saturated_boiling")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
 

@@ -14,6 +14,7 @@ from .growing_layer import GrowingLayer
 from .heat_leaks import HeatLeakLiquid, HeatLeakVapor, HeatLeakWall
 from .leaks import LiquidLeak, VaporLeak
 from .noncondensable import NoncondensableGas
+from .saturated_boiling import SaturatedBoiling
 from .sensors import InflowMeterBias, PressureSensorBias
 from .stratification import ThermalStratification
 from .surface_layer import SurfaceLayer
@@ -24,7 +25,8 @@ MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
               WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
-              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode, TwoNodeWall)
+              SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode, TwoNodeWall,
+              SaturatedBoiling)
 }
 
 
@@ -55,4 +57,5 @@ __all__ = [
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
     "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode", "TwoNodeWall",
+    "SaturatedBoiling",
 ]

@@ -11,6 +11,8 @@ It acts through hooks of ``TankModel``, each a no-op by default:
 * ``heat_W``: extra heat into the vapour, the liquid and the wall (W), which may depend on the
   state, the applied forcing and the baseline's flows (a redistribution sums to 0);
 * ``interface_offset_K``: a liquid surface temperature above the bulk's at the interface;
+* ``flash_kg_s``: liquid flashing to vapour beside the bulk's (``tankode.bulk``), leaving the
+  liquid as saturated vapour;
 * ``state_derivative``: the rate of the mechanism's own states (``states``, e.g. a surface
   layer's temperature excess), which the model appends to the 7 of ``tankode.state``;
 * ``wall_capacity_factor``: multiply m_w c_w;
@@ -185,6 +187,11 @@ class Mechanism(nn.Module):
 
     def interface_offset_K(self, z: Tensor) -> Tensor | float:
         """How much warmer than the bulk liquid the liquid at the interface is (K), given own states ``z``."""
+        return 0.0
+
+    def flash_kg_s(self, m_v: Tensor, m_l: Tensor, vapor, liquid, z: Tensor) -> Tensor | float:
+        """Liquid flashing to vapour (kg/s, >= 0) beside the bulk's, from the phases' masses
+        ``(env,)`` and properties (``vapor.T_sat`` at the ullage pressure) and own states ``z``."""
         return 0.0
 
     def initial_state(self, s0: Tensor, start: Start) -> Tensor:

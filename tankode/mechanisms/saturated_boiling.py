@@ -1,0 +1,54 @@
+"""A share of the liquid that boils as soon as it passes saturation, not at the bulk's superheat."""
+
+from __future__ import annotations
+
+from ..bulk import BulkPhaseChange
+from .base import Mechanism, Param
+
+# K past saturation at which the boiling share flashes: a quarter of the bulk's default
+# threshold, above the softplus onset (a tenth of it), so that a liquid sitting at saturation
+# sees exp(-10) of the onset width and stays put; below any thermometer's resolution.
+THRESHOLD_K = 0.05
+
+
+class SaturatedBoiling(Mechanism):
+    """Liquid flashing at saturation: the share of the liquid that does not superheat.
+
+    Physics. The baseline's liquid flashes in its bulk only ``flash_threshold_K`` (0.2 K) past
+    saturation at the ullage pressure (``tankode.bulk``): a superheat that nucleate boiling on
+    the wall needs. A depressurised tank's liquid surface and the liquid against a warm wall
+    boil at saturation, and tanks differ in how much of the lumped liquid that is: a thin
+    surface layer over a subcooled bulk, or a well-stirred liquid that follows ``T_sat(p)``
+    through a vent or a drain. The share ``c`` (in [0, 1]) of the liquid that boils at
+    ``THRESHOLD_K`` past saturation adds, beside the bulk's flash,
+
+        J = c m_l c_p,l sp(T_l - T_sat - THRESHOLD_K) / (L tau)
+
+    (``tankode.bulk.BulkPhaseChange`` with ``THRESHOLD_K`` and the bulk's ``tau_s``; flash vapour
+    leaves the liquid as saturated vapour, so total mass and energy are unchanged). At ``c = 1``
+    the liquid relaxes to saturation as fast as the bulk's flash does past its threshold; at
+    ``c = 0`` it is the baseline.
+
+    Signature: through a vent or a drain the liquid's temperature follows ``T_sat(p)`` within a
+    few hundredths of a kelvin and the pressure levels off sooner than the baseline's, which
+    lets the liquid superheat first; nothing changes while the liquid is below saturation.
+
+    It shapes the model's phase change, not the tank's inventory: the assimilation trains it
+    with the agent (``AssimilationConfig.boiling``); it is not a diagnosis candidate by default.
+
+    Limits: one share for the whole run (the layer that boils does not thin or thicken); the
+    boiling share cools with the bulk (no separate surface temperature).
+    """
+
+    id = "saturated_boiling"
+    params = (Param("share", "1", 0.0, 1.0, 0.1),)
+    signature = "through a vent or a drain T_l follows T_sat(p) and the pressure levels off sooner"
+
+    _BOILING = BulkPhaseChange(flash_threshold_K=THRESHOLD_K)
+
+    def flash_kg_s(self, m_v, m_l, vapor, liquid, z):
+        _, flash = self._BOILING.rates_kg_s(m_v, m_l, vapor, liquid)
+        return self.param(0, m_l) * flash
+
+
+__all__ = ["SaturatedBoiling"]
