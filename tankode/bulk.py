@@ -78,12 +78,15 @@ class BulkPhaseChange:
         metastable margin, which narrows towards the critical point): each threshold is capped
         at two thirds of it, so the bulk relaxation starts before a state leaves its branch.
         """
-        L = pv.h_vsat - pv.h_lsat
         fog = self._excess(pv.T_sat - pv.T, self.fog_threshold_K, margin_K)
-        # Saturation at the ullage's pressure for both: the liquid's own p(u, rho) is steep and
-        # only its derivatives drive the model (tankode.model, "Volume split").
+        return m_v * pv.cp * fog / ((pv.h_vsat - pv.h_lsat) * self.tau_s), self.flash_kg_s(m_l, pv, pl, margin_K)
+
+    def flash_kg_s(self, m_l: Tensor, pv, pl, margin_K=None) -> Tensor:
+        """J_flash in kg/s, ``(env,)`` and >= 0: ``rates_kg_s``'s second term alone."""
+        # Saturation at the ullage's pressure: the liquid's own p(u, rho) is steep and only its
+        # derivatives drive the model (tankode.model, "Volume split").
         flash = self._excess(pl.T - pv.T_sat, self.flash_threshold_K, margin_K)
-        return m_v * pv.cp * fog / (L * self.tau_s), m_l * pl.cp * flash / (L * self.tau_s)
+        return m_l * pl.cp * flash / ((pv.h_vsat - pv.h_lsat) * self.tau_s)
 
     def _excess(self, past_K: Tensor, threshold_K: float, margin_K) -> Tensor:
         """Smooth ``max(past - threshold, 0)`` in K, the threshold capped by the margin."""

@@ -312,7 +312,8 @@ class TankModel(nn.Module):
             domain = getattr(self.fluid, "domain", None)  # analytic test fluids have none
             fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl,
                                               None if domain is None else torch.as_tensor(domain.margin_K(pv.T_sat.detach())))
-        for m, z in zip(self.mechanisms, self.mechanism_states(s)):
+        zs = self.mechanism_states(s)
+        for m, z in zip(self.mechanisms, zs):
             flash = flash + m.flash_kg_s(m_v, m_l, pv, pl, z)
         # fog leaves the vapour as saturated liquid, flash the liquid as saturated vapour
         dm_v = dm_v - fog + flash
@@ -333,7 +334,7 @@ class TankModel(nn.Module):
         ds = torch.stack([dm_v, dm_l, du_v, du_l, dT_w, -W, W], dim=-1)
         if self.n_state == N_STATE:
             return ds
-        dz = [m.state_derivative(z, base, fc, f, pl, ds) for m, z in zip(self.mechanisms, self.mechanism_states(s))]
+        dz = [m.state_derivative(z, base, fc, f, pl, ds) for m, z in zip(self.mechanisms, zs)]
         return torch.cat([ds, *dz], dim=-1)
 
     def observe(self, s: Tensor) -> Tensor:

@@ -47,8 +47,7 @@ class SaturatedBoiling(Mechanism):
     _BOILING = BulkPhaseChange(flash_threshold_K=THRESHOLD_K)
 
     def flash_kg_s(self, m_v, m_l, vapor, liquid, z):
-        _, flash = self._BOILING.rates_kg_s(m_v, m_l, vapor, liquid)
-        return self.param(0, m_l) * flash
+        return self.param(0, m_l) * self._BOILING.flash_kg_s(m_l, vapor, liquid)
 
 
 __all__ = ["SaturatedBoiling"]
