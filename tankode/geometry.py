@@ -225,7 +225,10 @@ class TankGeometry:
         h = self._clamp_level(H_m)
         # Every supported shape is symmetric about half height: the dry wall above h equals the
         # wetted wall below height - h, which keeps the vapour area accurate when it is small.
-        return self._wall_below(h), self._wall_below(self._b(self.height_m, h) - h)
+        # Both levels go through one kernel call along a trailing axis: the tensors are tiny,
+        # so the right-hand side's cost is the number of operations, not their size.
+        both = torch.stack(torch.broadcast_tensors(h, self._b(self.height_m, h) - h), dim=-1)
+        return self._wall_below(both).unbind(-1)
 
     def wetted_area_slope_m(self, H_m: Any) -> Tensor:
         """d A_wall_liquid / dH [m] at level ``H_m`` [m], detached: the wetted wall gained per metre.
@@ -536,11 +539,13 @@ class VerticalCylinderEllipticalHeads(TankGeometry):
         d_bottom = torch.clamp(h, max=a)
         d_top = torch.clamp(h_top - h, max=a)  # dry depth in the top head
         # z measured from a head's equator: the bottom-head zone is z in [-a, d - a] (F is odd),
-        # the wetted part of the top head z in [0, a - d_top].
-        bottom = F_a - f(a - d_bottom)
-        middle = F_a + (h - a)
-        top = F_a + lc + f(a - d_top)
+        # the wetted part of the top head z in [0, a - d_top]. A level lies in one head at most,
+        # so F is evaluated once, at that head's z (0 in the straight part, where it is unused).
         in_bottom, in_top = h <= a, h_top - h <= a
+        f_z = f(torch.where(in_bottom, a - d_bottom, torch.where(in_top, a - d_top, torch.zeros_like(h))))
+        bottom = F_a - f_z
+        middle = F_a + (h - a)
+        top = F_a + lc + f_z
         return 2.0 * math.pi * r * torch.where(in_bottom, bottom, torch.where(in_top, top, middle))
 
     def wetted_area_slope_m(self, H_m: Any) -> Tensor:
@@ -712,16 +717,24 @@ def _asin_over_x(u: Tensor) -> Tensor:
     Analytic in u; a Taylor series is used for |u| < 0.01 where the closed forms cancel. Both
     closed forms are evaluated on safe stand-ins so where() never sees NaN gradients.
     """
-    small = u.abs() < 0.01
-    us = torch.where(small, u, 0.0)
-    series = torch.zeros_like(us)
-    for coef in reversed(_ASIN_SERIES):
-        series = series * us + coef
-    u_pos = torch.where(u >= 0.01, u, 0.5)
-    u_neg = torch.where(u <= -0.01, -u, 0.5)
-    pos = torch.asin(torch.sqrt(u_pos)) / torch.sqrt(u_pos)
-    neg = torch.asinh(torch.sqrt(u_neg)) / torch.sqrt(u_neg)
-    return torch.where(small, series, torch.where(u > 0.0, pos, neg))
+    small, pos, neg = u.abs() < 0.01, u >= 0.01, u <= -0.01
+    out = torch.zeros_like(u)
+    # Only the pieces some element needs are evaluated (a level in the straight part has u = 0;
+    # an oblate head never has u > 0): on the right-hand side's tiny tensors each skipped
+    # operation is time saved, and where() keeps the result and its gradient piecewise.
+    if bool(small.any()):
+        us = torch.where(small, u, 0.0)
+        series = torch.zeros_like(us)
+        for coef in reversed(_ASIN_SERIES):
+            series = series * us + coef
+        out = torch.where(small, series, out)
+    if bool(pos.any()):
+        u_pos = torch.where(pos, u, 0.5)
+        out = torch.where(pos, torch.asin(torch.sqrt(u_pos)) / torch.sqrt(u_pos), out)
+    if bool(neg.any()):
+        u_neg = torch.where(neg, -u, 0.5)
+        out = torch.where(neg, torch.asinh(torch.sqrt(u_neg)) / torch.sqrt(u_neg), out)
+    return out
 
 
 def _spheroid_meridian_integral(z: Tensor, a: Tensor, k: Tensor) -> Tensor:

@@ -72,17 +72,6 @@ def _smooth_abs(x: Tensor, eps: float) -> Tensor:
     return torch.sqrt(x * x + eps * eps)
 
 
-def _groups(props, rho: Tensor):
-    """(nu, alpha, Pr) of a phase."""
-    nu = props.mu / rho
-    alpha = props.k / (rho * props.cp)
-    return nu, alpha, nu / alpha
-
-
-def _rayleigh(props, nu: Tensor, alpha: Tensor, dT_abs: Tensor, L: Tensor) -> Tensor:
-    return GRAVITY_M_S2 * props.beta.abs() * dT_abs * L**3 / (nu * alpha)
-
-
 def churchill_chu(ra: Tensor, pr: Tensor) -> Tensor:
     """Nusselt number of a vertical plate, all Rayleigh numbers (Churchill & Chu 1975)."""
     return (0.825 + 0.387 * ra ** (1 / 6) / (1 + (0.492 / pr) ** (9 / 16)) ** (8 / 27)) ** 2
@@ -116,30 +105,36 @@ class NaturalConvectionClosure(Closure):
 
     def forward(self, x: ClosureInputs) -> Tensor:
         c = self.constants
-        R = x.radius_m
-        H = R / x.aspect_ratio
+        # Both phases at once along a trailing axis (vapour, liquid): the tensors are tiny, so the
+        # right-hand side's cost is the number of operations, not their size.
+        v, l = x.vapor, x.liquid
+        two = lambda a, b: torch.stack(torch.broadcast_tensors(a, b), dim=-1)  # noqa: E731
+        R = x.radius_m[..., None]
+        H_l = x.H_l_m[..., None]
         L_floor = c.min_height_share * R
-        L_wet = torch.sqrt(x.H_l_m**2 + L_floor**2)
-        L_dry = torch.sqrt((H - x.H_l_m).clamp_min(0.0) ** 2 + L_floor**2)
-        b = wave_height_m(x.slosh_amplitude_m, x.slosh_frequency_Hz, R, x.H_l_m, c.slosh_damping)
-        U = 2 * math.pi * x.slosh_frequency_Hz * b
+        # the wall each phase wets: the dry wall above the level, the wetted wall below it
+        L_wall = torch.sqrt(torch.cat([(R / x.aspect_ratio[..., None] - H_l).clamp_min(0.0), H_l], -1) ** 2
+                            + L_floor**2)
+        b = wave_height_m(x.slosh_amplitude_m, x.slosh_frequency_Hz, x.radius_m, x.H_l_m, c.slosh_damping)
+        U = (2 * math.pi * x.slosh_frequency_Hz * b)[..., None]
         eps = c.dT_smooth_K
-        out = []
-        for props, rho, T, L_wall in ((x.vapor, x.rho_v_kg_m3, x.T_v_K, L_dry), (x.liquid, x.rho_l_kg_m3, x.T_l_K, L_wet)):
-            nu, alpha, pr = _groups(props, rho)
-            nu_forced = forced_turbulent(U * R / nu, pr)
-            # Interface side: unstable when the liquid is warmer than saturation / the vapour colder.
-            dT_i = T - x.T_sat_K
-            unstable = dT_i if props is x.liquid else -dT_i
-            ra_i = _rayleigh(props, nu, alpha, _smooth_abs(dT_i, eps), R / 2)
-            s = torch.sigmoid(unstable / eps)
-            nu_i = s * horizontal_unstable(ra_i) + (1 - s) * horizontal_stable(ra_i)
-            h_i = _mixed(nu_i, nu_forced) * props.k / (R / 2)
-            ra_w = _rayleigh(props, nu, alpha, _smooth_abs(x.T_w_K - T, eps), L_wall)
-            h_w = _mixed(churchill_chu(ra_w, pr), nu_forced * L_wall / R) * props.k / L_wall
-            out.append((h_i, h_w))
-        (h_vi, h_wv), (h_li, h_wl) = out
-        return torch.stack([h_vi, h_li, h_wv, h_wl], dim=-1)
+        mu, k, cp, beta = two(v.mu, l.mu), two(v.k, l.k), two(v.cp, l.cp), two(v.beta, l.beta)
+        rho, T = two(x.rho_v_kg_m3, x.rho_l_kg_m3), two(x.T_v_K, x.T_l_K)
+        nu = mu / rho
+        alpha = k / (rho * cp)
+        pr = nu / alpha
+        nu_forced = forced_turbulent(U * R / nu, pr)
+        # Interface side: unstable when the liquid is warmer than saturation / the vapour colder.
+        dT_i = T - x.T_sat_K[..., None]
+        unstable = torch.cat([-dT_i[..., :1], dT_i[..., 1:]], dim=-1)
+        g_over = GRAVITY_M_S2 * beta.abs() / (nu * alpha)
+        ra_i = g_over * _smooth_abs(dT_i, eps) * (R / 2) ** 3
+        s = torch.sigmoid(unstable / eps)
+        nu_i = s * horizontal_unstable(ra_i) + (1 - s) * horizontal_stable(ra_i)
+        h_i = _mixed(nu_i, nu_forced) * k / (R / 2)
+        ra_w = g_over * _smooth_abs(x.T_w_K[..., None] - T, eps) * L_wall**3
+        h_w = _mixed(churchill_chu(ra_w, pr), nu_forced * L_wall / R) * k / L_wall
+        return torch.cat([h_i, h_w], dim=-1)  # (h_vi, h_li, h_wv, h_wl)
 
 
 __all__ = ["NaturalConvection", "NaturalConvectionClosure", "churchill_chu", "horizontal_unstable",
