@@ -75,6 +75,61 @@ class _LinearProblem:
         return r
 
 
+class _SaturatingProblem:
+    """A stand-in for ``Problem`` with one parameter whose response saturates (``tanh``): the
+    Gauss-Newton step from far away overshoots, so Levenberg-Marquardt must raise its damping."""
+
+    t = np.linspace(0.0, 1.0, 30)
+
+    def __init__(self, truth: float, noise: float):
+        from types import SimpleNamespace
+
+        measured = np.zeros((1, len(self.t), 5), bool)
+        measured[..., 0] = True
+        self.obs = SimpleNamespace(measured=measured, run_names=["run"])
+        self.n_simulations, self.batches = 0, []
+        clean = self.predict(None, np.array([truth]))[..., 0, :, 0]
+        self.y = clean + noise * np.random.default_rng(0).standard_normal(clean.shape)
+        self.n_simulations, self.batches = 0, []
+
+    def predict(self, params, values):
+        x = np.asarray(values, float)[..., :1]
+        out = np.zeros((*x.shape[:-1], 1, len(self.t), 5))
+        out[..., 0, :, 0] = np.tanh(3.0 * (x - 1.0)) * self.t + 0.1 * x
+        self.n_simulations += 1
+        self.batches.append(x.shape[:-1])
+        return out
+
+    def normalised_residuals(self, pred):
+        r = pred.copy()
+        r[..., 0, :, 0] -= self.y
+        return r
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.01])
+def test_levenberg_marquardt_tries_its_damping_ladder_at_once_and_takes_the_one_at_a_time_step(monkeypatch, noise):
+    """After a rejected step the fit simulates the next damping values as one batch and takes the
+    least damped one that lowers chi2, as the one-at-a-time search (a ladder of one) does: the
+    same estimate, in fewer simulations."""
+    import importlib
+
+    from tankode.diagnosis.forward import FreeParam
+
+    fit_module = importlib.import_module("tankode.diagnosis.fit")  # the module, not the function it exports
+    params = [FreeParam("vapor_leak", "x", "1", -5.0, 5.0, 1.0)]
+    fits, problems = [], []
+    for ladder in (1, fit_module._LADDER):
+        monkeypatch.setattr(fit_module, "_LADDER", ladder)
+        problem = _SaturatingProblem(truth=1.3, noise=noise)
+        fits.append(fit_module.fit(problem, params, np.array([4.0]), np.ones((1, len(problem.t)), bool)))
+        problems.append(problem)
+    one, batched = fits
+    assert batched.values[0] == pytest.approx(one.values[0], abs=1e-12) and batched.chi2 == pytest.approx(one.chi2)
+    assert batched.values[0] == pytest.approx(1.3, abs=5e-3)
+    assert any(b == (fit_module._LADDER,) for b in problems[1].batches)  # a whole ladder in one simulation
+    assert problems[1].n_simulations < problems[0].n_simulations
+
+
 def test_fit_correlation_is_the_least_squares_one_and_names_the_freedom_an_estimate_trades_off_with():
     from tankode.diagnosis.diagnose import Candidate, Thresholds, _label, _unresolved
     from tankode.diagnosis.fit import fit

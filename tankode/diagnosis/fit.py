@@ -187,8 +187,8 @@ def _levenberg_marquardt(residual, z0, lo, hi, max_iterations: int):
     Each iteration first tries the current damping ``lam``. After a rejection it tries the next
     ``_LADDER`` damping values (``lam`` times 10, 100, ...) as one batched simulation, which
     costs little more than one, and takes the least damped step that lowers chi2: the step the
-    one-at-a-time search would take, for a fraction of its simulations (a fit that ends with
-    "no step lowers chi2" used to spend a dozen simulations on its last iteration). A ladder
+    one-at-a-time search would take, for a fraction of its simulations (a fit whose last
+    iteration finds no better point climbs through up to fifteen decades of damping). A ladder
     the batch cannot integrate is retried one value at a time. After a rejection, the search
     stops where the linearised model itself promises less than ``_NEGLIGIBLE_CHI2``.
     """
