@@ -2,9 +2,9 @@
 
 The diagnosis fits at most a handful of parameters (four closure multipliers and one or two of
 a mechanism) to long, possibly stiff runs. Finite-difference Levenberg-Marquardt on the
-forward solver is the right tool there: each Jacobian costs ``n`` forward simulations with
-LSODA (which handles a light wall's stiffness that an explicit adjoint integration cannot
-afford), the problems are nearly linear in the mechanism parameters so Gauss-Newton converges
+forward solver is the right tool there: each Jacobian is one batched LSODA simulation of the
+``n + 1`` points (LSODA handles a light wall's stiffness that an explicit adjoint integration
+cannot afford), the problems are nearly linear in the mechanism parameters so Gauss-Newton converges
 in a few iterations, and the Jacobian is the one the Fisher information, the score test and
 the parameter uncertainties need anyway. Bounds are kept by projecting each step onto the box
 (SciPy's reflective trust region crawls away from a bound where a mechanism starts, at 0).
@@ -95,7 +95,8 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
         params: the parameters to fit; all others stay at 0 (absent) or 1 (closure multipliers).
         x0: starting values in physical units ``(n,)`` (clipped into the bounds).
         train: which sample times calibrate.
-        max_iterations: bound on Gauss-Newton iterations (each costs ``n + 1`` simulations).
+        max_iterations: bound on Gauss-Newton iterations (each one batched Jacobian simulation
+            and one or more trial simulations, a damping ladder batched in one).
 
     Raises:
         SimulationError: the model cannot even be integrated at the starting point.
