@@ -68,6 +68,18 @@ def _parse_mechanism(spec: str):
     return make_mechanism(mid.strip(), **values)
 
 
+def _parse_mechanisms(specs) -> tuple:
+    """Every ``--mechanism`` spec parsed (``_parse_mechanism``); a mechanism named twice is refused
+    with the form that sets several of its parameters."""
+    out = tuple(_parse_mechanism(spec) for spec in specs)
+    ids = [m.id for m in out]
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        raise ValueError(f"--mechanism names {', '.join(twice)} more than once; give a mechanism's parameters "
+                         f"once, comma-separated, e.g. {twice[0]}:NAME=VALUE,NAME=VALUE")
+    return out
+
+
 def _whole_number(text: str, option: str) -> int:
     try:
         return int(text)
@@ -102,7 +114,7 @@ def cmd_simulate(args) -> int:
     run = _initial(run, args.initial)
     if args.model is not None:
         closure, mechanisms, _ = load_model(args.model)
-    hidden = tuple(_parse_mechanism(spec) for spec in args.mechanism)
+    hidden = _parse_mechanisms(args.mechanism)
     model_name = f"the model in {args.model}" if args.model else "the reference closure"
     if hidden:
         model_name += " and the mechanism(s) " + ", ".join(f"{m.id} {m.values_dict()}" for m in hidden)
@@ -180,7 +192,7 @@ def cmd_assimilate(args) -> int:
             print(f"note: the closure of {args.init} has no trainable weights; training a fresh MLP agent with "
                   f"its mechanisms {[m.id for m in mechanisms]}")
             closure = None
-    mechanisms = tuple(mechanisms) + tuple(_parse_mechanism(spec) for spec in args.mechanism)
+    mechanisms = tuple(mechanisms) + _parse_mechanisms(args.mechanism)
     local, parallel = runs, None
     if launch is not None:  # this rank's shard of the runs, cut by probed cost
         local, parallel = launch.shard(runs, config, closure, mechanisms)
@@ -333,7 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "reference correlations")
     s.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
                    help="add a mechanism to the simulation, e.g. vapor_leak:mdot_kg_s=1e-4 (a hidden effect for "
-                        "testing the diagnosis); repeatable")
+                        "testing the diagnosis); repeatable, once per mechanism, several parameters comma-separated "
+                        "(ID:A=1,B=2; a parameter left out is 0)")
     s.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     s.set_defaults(func=cmd_simulate)
     a = sub.add_parser("assimilate", help="train the MLP closure (the agent) on measured runs, window by window")
@@ -385,7 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start from this model directory (its closure, and its mechanisms: fixed unless named by "
                         "--train-mechanisms)")
     a.add_argument("--mechanism", action="append", default=[], metavar="ID:NAME=VALUE",
-                   help="add a mechanism to the model trained, e.g. dry_wall_node:R_sheet_K_per_W=10 (repeatable)")
+                   help="add a mechanism to the model trained, e.g. dry_wall_node:R_sheet_K_per_W=10; repeatable, "
+                        "once per mechanism, several parameters comma-separated (ID:A=1,B=2; a parameter left out is 0)")
     a.add_argument("--train-mechanisms", nargs="+", default=[], metavar="ID",
                    help="train these mechanisms' parameters with the agent, inside their physical bounds, starting "
                         "from their given values (trainers/mechanism_params.py)")

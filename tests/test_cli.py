@@ -183,5 +183,15 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
                  "--wall", "lumped"]) == 2  # the stand-in stops the command
     assert seen["config"].train_mechanisms == ("dry_wall_node",)
     assert [(m.id, m.values_dict()) for m in seen["mechanisms"]] == [("dry_wall_node", {"R_sheet_K_per_W": 10.0})]
+    # several parameters of one mechanism go in one spec; naming it twice says so
+    capsys.readouterr()
+    assert main([*args, "--mechanism", "surface_layer:inv_thickness_1_per_m=50,wall_share=0.1"]) == 2
+    assert seen["mechanisms"][-1].values_dict() == {"inv_thickness_1_per_m": 50.0, "wall_share": 0.1,
+                                                    "mixing_rate_1_per_s": 0.0}
+    seen.clear()
+    assert main([*args, "--mechanism", "surface_layer:inv_thickness_1_per_m=50",
+                 "--mechanism", "surface_layer:wall_share=0.1"]) == 2
+    assert "names surface_layer more than once; give a mechanism's parameters once, comma-separated" in capsys.readouterr().err
+    assert "mechanisms" not in seen  # refused before any training starts
     assert main([*args, "--mode", "fixed", "--window-start", "joint", "--start-prior-sigmas", "-1"]) == 2
     assert "start_prior_sigmas must be a positive number of noise sigmas, got -1.0" in capsys.readouterr().err
