@@ -227,7 +227,7 @@ def _levenberg_marquardt(residual, z0, lo, hi, max_iterations: int):
             if not keep:
                 return z, r, jac, f"converged after {it - 1} iterations (no step lowers chi2)"
             lams, Z = [lams[k] for k in keep], np.array([Z[k] for k in keep])
-            R = residual(Z) if len(Z) > 1 else residual(Z[0])[None]
+            R = residual(Z)
             if len(Z) > 1 and np.all(R == _FAILED_RESIDUAL):
                 R = np.array([residual(zk) for zk in Z])
             chi2s = np.einsum("bi,bi->b", R, R)
