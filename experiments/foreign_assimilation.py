@@ -19,13 +19,17 @@ sharing no code with tankode or the other two, with laws of its own (Churchill-C
 Globe-Dropkin interface, a surface layer over the bulk liquid, wet and dry wall nodes whose
 split at the start is its own, nucleate boiling) and other fluids: a 2 m3 nitrogen dewar with
 2:1 heads (vent, drain), an 8 m3 hydrogen horizontal cylinder (drain, vent, sloshing) and a
-30 m3 methane sphere (warm-gas pressurisation, sloshing, fill).
+30 m3 methane sphere (warm-gas pressurisation, sloshing, fill). ``--simulator layer`` takes them
+from ``tests/layer_sim.py``, a fourth: a stratified liquid and ullage in layers and a wall of ten
+nodes along the height (a 15 m3 hydrogen tank with heads: pressurisation, vent, sloshing; a 5 m3
+nitrogen sphere: fill, drain, vent; an 8 m3 hydrogen horizontal cylinder: drain, top-up).
 
 The simulator is run through its command line (``python tests/nodal_sim.py``), as a user's data
 would arrive: as files.
 
     python experiments/foreign_assimilation.py [--quick] [--out results/foreign_assimilation]
-        [--simulator nodal|cryo] [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
+        [--simulator nodal|cryo|layer] [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
+        [--replay-segments N] [--replay-s S]
 
 ``--seeds`` trains one agent per seed (initial weights and replay draws) on the same run, to
 separate what the data teach from what one draw of the initial weights does.
@@ -48,10 +52,11 @@ from trainers.assimilate import AssimilationConfig
 from trainers.evaluate import hold_out
 
 TESTS = Path(__file__).resolve().parents[1] / "tests"
-SIMULATORS = {"nodal": TESTS / "nodal_sim.py", "cryo": TESTS / "cryo_sim.py"}
+SIMULATORS = {"nodal": TESTS / "nodal_sim.py", "cryo": TESTS / "cryo_sim.py", "layer": TESTS / "layer_sim.py"}
 LAWS = ("paper_printed", "mcadams", "slosh_energy")
-CRYO_LAW = "cryo_sim"  # the third simulator's own laws (module docstring)
-CRYO_SCENARIOS = ("ln2_dewar", "lh2_hcyl", "lch4_sphere")
+# The third and fourth simulators come with their own laws (module docstring): their scenarios.
+OWN_LAW_SCENARIOS = {"cryo": ("ln2_dewar", "lh2_hcyl", "lch4_sphere"),
+                     "layer": ("lh2_upright", "ln2_sphere", "lh2_hcyl")}
 # (scenario, what it holds): four shapes, every operation between them.
 SCENARIOS = (
     ("upright_13m3", "upright cylinder 13.6 m3: heat, warm-gas pressurisation, sloshing, vent, drain"),
@@ -63,12 +68,12 @@ NOISE = "low"  # the simulator's low level: 300 Pa, 0.05 K, 1 mm
 
 
 def make_run(out: Path, scenario: str, law: str, seed: int, duration_s: float | None = None) -> Path:
-    """Write one run of an independent simulator into ``out`` (``law`` ``CRYO_LAW``: the third
-    simulator's; else ``tests/nodal_sim.py`` with that law); return its JSON path."""
+    """Write one run of an independent simulator into ``out`` (``law`` the name of a simulator with
+    its own laws, ``cryo`` or ``layer``; else ``tests/nodal_sim.py`` with that law); return its JSON path."""
     name = f"{scenario}_{law}"
-    simulator = SIMULATORS["cryo" if law == CRYO_LAW else "nodal"]
-    cmd = [sys.executable, str(simulator), scenario, "--out", str(out), "--name", name, "--noise", NOISE,
-           "--seed", str(seed)] + ([] if law == CRYO_LAW else ["--law", law])
+    own = law in OWN_LAW_SCENARIOS
+    cmd = [sys.executable, str(SIMULATORS[law if own else "nodal"]), scenario, "--out", str(out), "--name", name,
+           "--noise", NOISE, "--seed", str(seed)] + ([] if own else ["--law", law])
     if duration_s is not None:
         cmd += ["--duration", str(duration_s)]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
@@ -80,29 +85,35 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="one law and one 40-minute run (CI smoke run)")
     ap.add_argument("--out", default="results/foreign_assimilation")
     ap.add_argument("--simulator", choices=sorted(SIMULATORS), default="nodal",
-                    help="nodal: tests/nodal_sim.py with --laws; cryo: tests/cryo_sim.py, its own laws")
+                    help="nodal: tests/nodal_sim.py with --laws; cryo, layer: tests/cryo_sim.py or "
+                         "tests/layer_sim.py, each with its own laws")
     ap.add_argument("--laws", nargs="+", choices=LAWS, default=list(LAWS))
-    ap.add_argument("--scenarios", nargs="+", choices=[s for s, _ in SCENARIOS] + list(CRYO_SCENARIOS),
+    ap.add_argument("--scenarios", nargs="+",
+                    choices=sorted({s for s, _ in SCENARIOS} | {s for v in OWN_LAW_SCENARIOS.values() for s in v}),
                     help="default: the simulator's scenarios")
     ap.add_argument("--duration", type=float, default=None, help="cut each run to this many seconds (default: whole)")
+    ap.add_argument("--replay-segments", type=int, default=AssimilationConfig.replay_segments,
+                    help="AssimilationConfig.replay_segments (default: the package's)")
+    ap.add_argument("--replay-s", type=float, default=AssimilationConfig.replay_s,
+                    help="AssimilationConfig.replay_s in s (default: the package's)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="agent seeds (AssimilationConfig.seed: initial weights, replay draws); one row per seed")
     args = ap.parse_args(argv)
     quick, out = args.quick, Path(args.out)
     data = out / "runs"
     data.mkdir(parents=True, exist_ok=True)
-    cryo = args.simulator == "cryo"
-    names = list(CRYO_SCENARIOS) if cryo else [s for s, _ in SCENARIOS]
+    own = args.simulator in OWN_LAW_SCENARIOS
+    names = list(OWN_LAW_SCENARIOS[args.simulator]) if own else [s for s, _ in SCENARIOS]
     scenarios = args.scenarios or names
     if any(s not in names for s in scenarios):
         ap.error(f"--simulator {args.simulator} has the scenarios {names}, got {scenarios}")
-    laws = [CRYO_LAW] if cryo else args.laws
+    laws = [args.simulator] if own else args.laws
     plan = [(s, law) for law in laws for s in scenarios] if not quick else [("upright_13m3", "mcadams")]
     duration_s = 2400.0 if quick else args.duration
     rows = []
     for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
-        config = AssimilationConfig(seed=agent_seed)
-        seed = (0 if cryo else LAWS.index(law)) * len(names) + names.index(scenario)  # the same run whatever the selection
+        config = AssimilationConfig(seed=agent_seed, replay_segments=args.replay_segments, replay_s=args.replay_s)
+        seed = (0 if own else LAWS.index(law)) * len(names) + names.index(scenario)  # the same run whatever the selection
         path = make_run(data, scenario, law, seed=seed, duration_s=duration_s)
         run = read_run(path)
         start = time.perf_counter()
@@ -115,7 +126,8 @@ def main(argv=None) -> dict:
                "mechanisms": h.mechanisms}
         rows.append(row)
         print(json.dumps(row), flush=True)
-    (out / "results.json").write_text(json.dumps({"config": AssimilationConfig().to_json(), "noise": NOISE,
+    config = AssimilationConfig(replay_segments=args.replay_segments, replay_s=args.replay_s)
+    (out / "results.json").write_text(json.dumps({"config": config.to_json(), "noise": NOISE,
                                                   "rows": rows}, indent=1))
     lines = ["| law | run | agent seed | held-out forecast RMSE / sigma (p, T_v, T_l, T_w, H_l) | J windows / floor | "
              "from the start: fit RMSE / sigma | held-out | J fit / floor | RTF min / median |",

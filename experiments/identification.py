@@ -61,6 +61,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--iters", type=int, default=None, help="AssimilationConfig.iters (default: the config block's)")
     ap.add_argument("--mode", choices=("fixed", "growing", "replay"), default=None,
                     help="AssimilationConfig.mode (default: the config block's, fixed)")
+    ap.add_argument("--replay-segments", type=int, default=None,
+                    help="AssimilationConfig.replay_segments with --mode replay (default: the config's)")
+    ap.add_argument("--replay-s", type=float, default=None,
+                    help="AssimilationConfig.replay_s with --mode replay, in s (default: the config's)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -72,6 +76,10 @@ def main(argv=None) -> dict:
         config = dataclasses.replace(config, iters=args.iters)
     if args.mode is not None:
         config = dataclasses.replace(config, mode=args.mode)
+    if args.replay_segments is not None:
+        config = dataclasses.replace(config, replay_segments=args.replay_segments)
+    if args.replay_s is not None:
+        config = dataclasses.replace(config, replay_s=args.replay_s)
 
     run = get_case(CASE)
     if args.quick:

@@ -137,6 +137,16 @@ def test_the_vents_measure_an_inert_gas_by_the_mass_they_meter_beyond_the_invent
     assert "noncondensable_gas" not in audit_run(nodal("random_120", "slosh_energy")).hypotheses
 
 
+def _assert_audit_finds(run, finding, value):
+    """The audit of ``run`` names ``finding`` alone with its estimate within 25 % of ``value``, or nothing."""
+    a = audit_run(run)
+    if finding is None:
+        assert a.findings == (), a.summary()
+        return
+    assert [f.name for f in a.findings] == [finding], a.summary()
+    assert a.findings[0].estimate.value == pytest.approx(value, rel=0.25), a.summary()
+
+
 @pytest.mark.parametrize("scenario,mechanism,value,finding", [
     ("ln2_dewar", None, 0.0, None),
     ("ln2_dewar", "vapor_leak_kg_s", 1e-3, "vapor_leak"),
@@ -148,12 +158,7 @@ def test_the_audit_reads_other_fluids_from_a_third_simulator(tmp_path, scenario,
     (15 standard errors), a 15 % inflow bias at 0.150; the null names nothing."""
     paths = cryo_sim.simulate_run(scenario, {mechanism: value} if mechanism else None, noise="low", seed=0,
                                   out_dir=tmp_path, name=f"{scenario}_{mechanism}")
-    a = audit_run(read_run(paths["json"]))
-    if finding is None:
-        assert a.findings == (), a.summary()
-        return
-    assert [f.name for f in a.findings] == [finding], a.summary()
-    assert a.findings[0].estimate.value == pytest.approx(value, rel=0.25), a.summary()
+    _assert_audit_finds(read_run(paths["json"]), finding, value)
 
 
 @pytest.mark.parametrize("mechanism,value,finding", [
@@ -168,12 +173,7 @@ def test_the_audit_reads_a_stratified_tank_from_a_fourth_simulator(tmp_path, mec
     0.5 K thermometer bias at 0.436 K; the null names nothing."""
     paths = layer_sim.simulate_run("lh2_hcyl", {mechanism: value} if mechanism else None, noise="low", seed=0,
                                    out_dir=tmp_path, name=f"hcyl_{mechanism}", duration_s=3600.0)
-    a = audit_run(read_run(paths["json"]))
-    if finding is None:
-        assert a.findings == (), a.summary()
-        return
-    assert [f.name for f in a.findings] == [finding], a.summary()
-    assert a.findings[0].estimate.value == pytest.approx(value, rel=0.25), a.summary()
+    _assert_audit_finds(read_run(paths["json"]), finding, value)
 
 
 def test_a_stratified_liquid_read_by_its_mass_averaged_temperature_leaves_the_inventory_as_metered(nodal):
