@@ -38,6 +38,7 @@ separate what the data teach from what one draw of the initial weights does.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import subprocess
@@ -110,9 +111,10 @@ def main(argv=None) -> dict:
     laws = [args.simulator] if own else args.laws
     plan = [(s, law) for law in laws for s in scenarios] if not quick else [("upright_13m3", "mcadams")]
     duration_s = 2400.0 if quick else args.duration
+    base = AssimilationConfig(replay_segments=args.replay_segments, replay_s=args.replay_s)
     rows = []
     for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
-        config = AssimilationConfig(seed=agent_seed, replay_segments=args.replay_segments, replay_s=args.replay_s)
+        config = dataclasses.replace(base, seed=agent_seed)
         seed = (0 if own else LAWS.index(law)) * len(names) + names.index(scenario)  # the same run whatever the selection
         path = make_run(data, scenario, law, seed=seed, duration_s=duration_s)
         run = read_run(path)
@@ -126,8 +128,7 @@ def main(argv=None) -> dict:
                "mechanisms": h.mechanisms}
         rows.append(row)
         print(json.dumps(row), flush=True)
-    config = AssimilationConfig(replay_segments=args.replay_segments, replay_s=args.replay_s)
-    (out / "results.json").write_text(json.dumps({"config": config.to_json(), "noise": NOISE,
+    (out / "results.json").write_text(json.dumps({"config": base.to_json(), "noise": NOISE,
                                                   "rows": rows}, indent=1))
     lines = ["| law | run | agent seed | held-out forecast RMSE / sigma (p, T_v, T_l, T_w, H_l) | J windows / floor | "
              "from the start: fit RMSE / sigma | held-out | J fit / floor | RTF min / median |",
