@@ -202,14 +202,14 @@ def main(argv=None) -> dict:
     d = diagnose(runs, config=config, progress=lambda line: print(line, flush=True))
     paths = write_report(d, out / "diagnosis", FLUID)
     best = d.ranking[0] if d.ranking else None
-    print(f"diagnosis: cause {d.cause} ({d.wall_time_s:.0f} s)", flush=True)
+    print(f"diagnosis: {d.verdict.kind} {d.named} ({d.wall_time_s:.0f} s)", flush=True)
 
     # 2b. the same from each test's samples at t = 0, with the h_wv correlation trusted (MEASURED)
     measured = [r.with_measured_initial() for r in runs]
     dm = diagnose(measured, config=QUICK_MEASURED if args.quick else MEASURED,
                   progress=lambda line: print(line, flush=True))
     write_report(dm, out / "diagnosis_measured", FLUID)
-    print(f"diagnosis from the samples, h_wv held: cause {dm.cause} ({dm.wall_time_s:.0f} s)", flush=True)
+    print(f"diagnosis from the samples, h_wv held: {dm.verdict.kind} {dm.named} ({dm.wall_time_s:.0f} s)", flush=True)
 
     # 3. calibrated (baseline fit on both) and extended (with the cause) against the EBM
     cal_closure, cal_mechs = d.problem.build(d.baseline_fit.params, d.baseline_fit.values)
@@ -222,7 +222,7 @@ def main(argv=None) -> dict:
 
     # 3b. the best-evidenced candidate even when it is not named: how far it takes the fit
     best_not_named = None
-    if best is not None and best.refit and best.mechanism != d.cause:
+    if best is not None and best.refit and best.mechanism != d.named:
         closure, mechs, f = _calibrate_on(runs, best.mechanism, config.max_iterations)
         best_not_named = {"mechanism": best.mechanism, "values_calibrated_on_both": _values(f),
                           "values_leave_one_out": {}}
@@ -237,9 +237,9 @@ def main(argv=None) -> dict:
     loo = {}
     for held in runs:
         (train,) = [r for r in runs if r is not held]
-        sol, f = _leave_one_out(runs, held, d.cause, config.max_iterations)
+        sol, f = _leave_one_out(runs, held, d.named, config.max_iterations)
         rm[held.name]["tankode_leave_one_out"] = sc = score(held, solution_observations(sol))
-        loo[held.name] = {"calibrated_on": train.name, "mechanism": d.cause, "fit_status": f.status,
+        loo[held.name] = {"calibrated_on": train.name, "mechanism": d.named, "fit_status": f.status,
                           "values": _values(f), "solution": sol,
                           "p_rmse_Pa": sc["ebm_span"]["p_v_Pa"]["rmse"],
                           "ebm_p_rmse_Pa": rm[held.name]["ebm"]["ebm_span"]["p_v_Pa"]["rmse"],
@@ -301,7 +301,7 @@ def main(argv=None) -> dict:
         w.writerows(table)
     summary = {
         "quick": args.quick, "runs": [r.name for r in runs], "notes": notes, "baseline_misfit": misfit,
-        "diagnosis": {"cause": d.cause, "split": d.split, "wall_time_s": d.wall_time_s,
+        "diagnosis": {"cause": d.cause, "named": d.named, "split": d.split, "wall_time_s": d.wall_time_s,
                       "n_simulations": d.n_simulations, "unexplained": d.unexplained,
                       "baseline_closure_factors": d.baseline["closure_factors"],
                       "baseline_heldout_loss": d.baseline["heldout_loss"],
@@ -326,7 +326,7 @@ def main(argv=None) -> dict:
     (out / "summary.md").write_text(_markdown(summary))
     for r in runs:
         _figure(out / f"mhtb_{r.name}.png", r, ebm[r.name], baseline[r.name], extended[r.name],
-                loo[r.name]["solution"], d.cause, layer_solutions[r.name])
+                loo[r.name]["solution"], d.named, layer_solutions[r.name])
     print((out / "summary.md").read_text())
     print(f"wall time {wall:.0f} s")
     return summary
@@ -336,7 +336,7 @@ def _diagnosis_summary(d):
     """Step 2b's verdict and its first candidate's evidence, with the held-out residuals of its model per test."""
     first = d.ranking[0].to_json() if d.ranking else None
     model = d.extended or d.baseline
-    return {"cause": d.cause, "wall_time_s": d.wall_time_s, "n_simulations": d.n_simulations,
+    return {"cause": d.cause, "named": d.named, "wall_time_s": d.wall_time_s, "n_simulations": d.n_simulations,
             "held_factors": d.baseline["held_factors"], "baseline_closure_factors": d.baseline["closure_factors"],
             "extended_closure_factors": d.extended["closure_factors"] if d.extended else None,
             "extended_params": d.extended["params"] if d.extended else None,

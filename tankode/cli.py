@@ -281,6 +281,8 @@ def cmd_diagnose(args) -> int:
                   + ", ".join(d.alternatives))
     elif v.kind == "unresolved":
         print(f"measured, not located: {v.sentence}; candidates: {', '.join(v.candidates)}")
+    elif v.kind == "model_form":
+        print(f"cause: none; the model's form: {d.named} ({v.source}): {v.sentence.removeprefix('no cause: ')}")
     else:
         print(f"cause: none ({v.sentence.removeprefix('no cause: ')})")
     print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "

@@ -12,6 +12,7 @@ from .errors import SimulationError
 from .forcing import Forcing
 from .geometry import stack_geometries
 from .run import Run
+from .mechanisms.base import Mechanism
 from .schedule import INPUT_NAMES, merge_breakpoints
 from .wall import WallHeatCapacity, resolve_wall_heat_capacity
 
@@ -135,7 +136,9 @@ class Fleet:
         Both phases are placed at the ullage pressure; the liquid's (u, rho) is taken on the
         liquid branch even if slightly superheated (a metastable state), as measured runs have.
         The initial pressure is a sensor reading: the ``mechanisms``' pressure offsets (a bias,
-        an inert gas) at (T_v0, V_v0) are removed from it to get the hydrogen's pressure.
+        an inert gas) at (T_v0, V_v0) are removed from it to get the hydrogen's pressure; their
+        liquid thermometer offsets likewise from the initial liquid temperature, which they may
+        then set from the saturation temperature at that pressure (``initial_liquid_K``).
 
         Raises:
             SimulationError: the offsets leave a non-positive hydrogen pressure.
@@ -149,12 +152,22 @@ class Fleet:
             with torch.no_grad():
                 off = m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l))
             p = p - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), p.shape)
+        T_l = np.array([i.T_l_K for i in ini])
+        for m in mechanisms:  # the initial liquid temperature is a reading too
+            with torch.no_grad():
+                off = m.liquid_temperature_offset_K(torch.as_tensor(T_l))
+            T_l = T_l - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), T_l.shape)
+        if (p > 0).all() and any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms):
+            T_sat = torch.as_tensor(self.reference.saturation(p)["T_sat"])
+            for m in mechanisms:
+                with torch.no_grad():
+                    T_l = m.initial_liquid_K(torch.as_tensor(T_l), T_sat).numpy()
         if (p <= 0).any():
             # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
             # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
             raise SimulationError(f"initial hydrogen pressure {p} Pa is not positive after removing the mechanisms' "
                                   "pressure offsets from the initial reading", t_s=self.t0_s)
-        return self.state_from(p, T_v, np.array([i.T_l_K for i in ini]), np.array([i.T_w0_K for i in ini]), V_l)
+        return self.state_from(p, T_v, T_l, np.array([i.T_w0_K for i in ini]), V_l)
 
     def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:
         """State ``(env, 7)`` from per-environment (p_v, T_v, T_l, T_w, V_l) arrays, via CoolProp."""

@@ -255,6 +255,10 @@ class TankModel(nn.Module):
         """Sensor pressure minus hydrogen pressure from the mechanisms (Pa), shaped like ``T_v_K``."""
         return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
 
+    def liquid_temperature_offset_K(self, T_l_K: Tensor):
+        """Liquid thermometer reading minus the liquid's temperature from the mechanisms (K), shaped like ``T_l_K``."""
+        return sum((m.liquid_temperature_offset_K(T_l_K) for m in self.mechanisms), torch.zeros_like(T_l_K))
+
     def _impossible(self, base: Tensor) -> None:
         """Raise ``ImpossibleState`` where the tank cannot go on: no ullage, no liquid, a wall at 0 K."""
         with torch.no_grad():
@@ -341,14 +345,15 @@ class TankModel(nn.Module):
         """Observation operator h(s) = (p_v [Pa], T_v [K], T_l [K], T_w [K], H_l [m]), shape ``(..., 5)``.
 
         The pressure is what the sensor reads: the hydrogen pressure plus the mechanisms'
-        offsets (a bias, an inert gas's partial pressure).
+        offsets (a bias, an inert gas's partial pressure); the liquid temperature likewise
+        (a thermometer's bias).
         """
         m_v, m_l, u_v, u_l, T_w, V_v, V_l = s[..., :N_STATE].unbind(-1)
         pv = self.fluid.vapor(u_v, m_v / V_v)
         pl = self.fluid.liquid(u_l, m_l / V_l)
         H_l = self.geometry.level_at_volume(V_l)
         p = pv.p + self.pressure_offset_Pa(pv.T, V_v)
-        return torch.stack([p, pv.T, pl.T, T_w, H_l], dim=-1)
+        return torch.stack([p, pv.T, pl.T + self.liquid_temperature_offset_K(pl.T), T_w, H_l], dim=-1)
 
     def total_energy_J(self, s: Tensor) -> Tensor:
         """m_v u_v + m_l u_l + C_w T_w (J) for ``s`` shaped ``(env, n_state)`` or ``(env, time, n_state)``.

@@ -362,7 +362,8 @@ def test_every_default_candidate_has_a_hidden_mechanism_test():
     assert sorted(h[1] for h in HIDDEN) == sorted(DEFAULT_CANDIDATES)
     # the mechanisms left out of the defaults (opt-in: experiments/README.md says why)
     assert set(MECHANISMS) - set(DEFAULT_CANDIDATES) == {"surface_layer", "boundary_layer_stratification", "growing_layer",
-                                                       "diffusive_layer", "two_node_wall", "saturated_boiling"}
+                                                       "diffusive_layer", "two_node_wall", "saturated_boiling",
+                                                       "temperature_sensor_bias", "saturated_start"}
 
 
 def _data(case: str, mechanism: str | None, value: float, seed: int, noise: str = "low"):
@@ -381,7 +382,10 @@ def _check_found(d, mechanism: str, value: float) -> None:
     # the cheap score test already puts it among the leaders (only the top 5 are refitted)
     assert top.score_rank <= 3, top.score_rank
     assert top.mechanism == mechanism, [(c.mechanism, c.delta_bic, c.heldout_gain, c.reasons) for c in d.ranking[:3]]
-    assert d.cause == mechanism, top.reasons
+    # the tank's own physics (a dry wall, stratification) is named as the model's form, never as a cause
+    model_form = make_mechanism(mechanism).model_form
+    assert d.named == mechanism and d.verdict.kind == ("model_form" if model_form else "cause"), top.reasons
+    assert d.cause == (None if model_form else mechanism)
     # the presence parameter (the first; a multi-parameter mechanism's others only shape it)
     name, estimate = next(iter(d.extended["params"].items()))
     assert estimate == pytest.approx(value[name] if isinstance(value, dict) else value, rel=0.25)
@@ -410,7 +414,7 @@ def test_diagnosis_finds_the_hidden_mechanism(case, mechanism, value, seed):
                                        pytest.param("case4", 13, marks=pytest.mark.slow)])
 def test_no_hidden_effect_names_no_cause(case, seed):
     d = diagnose([_data(case, None, 0.0, seed)])
-    assert d.cause is None, [(c.mechanism, c.delta_bic, c.heldout_gain, c.heldout_gain_ci) for c in d.ranking[:3]]
+    assert d.named is None, [(c.mechanism, c.delta_bic, c.heldout_gain, c.heldout_gain_ci) for c in d.ranking[:3]]
     # The truth is the reference closure, so the calibrated baseline is at the noise floor.
     assert not d.unexplained
 
@@ -421,7 +425,7 @@ def test_a_node_the_h_wv_factor_mimics_is_found_once_that_factor_is_held():
     free h_wv factor partly mimics (nothing named: it explains 43 %); with h_wv held at the
     correlation, which is the truth here, the node is named within 25 % (measured: 0.118 for 0.1)."""
     data = _data("case2", "dry_wall_node", 0.1, 16)
-    assert diagnose([data]).cause is None
+    assert diagnose([data]).named is None
     d = diagnose([data], config=DiagnosisConfig(hold=("h_wv",)))
     _check_found(d, "dry_wall_node", 0.1)
     assert d.baseline["closure_factors"]["h_wv_factor"] == 1.0
@@ -436,7 +440,7 @@ def test_a_close_runner_up_is_reported_as_not_ruled_out():
     config = DiagnosisConfig(candidates=("dry_wall_heating", "heat_leak_vapor"),
                              thresholds=Thresholds(alternative_bic=50.0))
     d = diagnose([_data("case3", "dry_wall_heating", 0.3, 15)], config=config)
-    assert d.cause == "dry_wall_heating" and d.alternatives == ["heat_leak_vapor"]
+    assert d.named == "dry_wall_heating" and d.verdict.kind == "model_form" and d.alternatives == ["heat_leak_vapor"]
     assert d.to_json()["alternatives"] == ["heat_leak_vapor"]
     assert "Not ruled out: `heat_leak_vapor`" in markdown(d, [])
 
@@ -458,7 +462,7 @@ def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_i
     # the bias clears everything else (a 17.7 kPa offset on a 300 Pa sensor) and is withdrawn
     assert [r for r in bias.reasons if not r.startswith("outranked by dry_wall_node")] == []
     assert bias.params["bias_Pa"] == pytest.approx(17.7e3, rel=0.1)
-    assert d.cause is None and d.ranking[0].mechanism == "dry_wall_node"
+    assert d.named is None and d.ranking[0].mechanism == "dry_wall_node"
     # unresolved because the data fix only its combination with the h_wv factor
     assert node.tradeoff["with"] == "the h_wv factor" and node.tradeoff["correlation"] < -0.99
     assert node.reasons[0].endswith(f"(it trades off with the h_wv factor: correlation {node.tradeoff['correlation']:+.2f})")
@@ -484,7 +488,7 @@ def test_on_mhtb_from_its_samples_with_the_h_wv_correlation_trusted_the_node_lea
     assert d.baseline["closure_factors"]["h_wv_factor"] == 1.0 and d.baseline["held_factors"] == ["h_wv"]
     assert 5.0 < node.params["R_sheet_K_per_W"] < 25.0 and node.z_score > 5.0
     assert node.heldout_gain_ci[0] > 0.2 and node.explained > 0.5
-    assert d.cause is None and node.reasons and all(r.startswith("unstable: R_sheet_K_per_W") for r in node.reasons)
+    assert d.named is None and node.reasons and all(r.startswith("unstable: R_sheet_K_per_W") for r in node.reasons)
     assert any(r.endswith("on the held-out data of fold 2 (P263981D)") for r in node.reasons), node.reasons
 
 

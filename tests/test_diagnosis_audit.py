@@ -239,6 +239,24 @@ def test_the_verdict_takes_the_audits_cause_and_names_dynamic_ones_only_when_not
     assert decide(cold, [_cand("thermal_stratification"), _cand("noncondensable_gas")], th).name == "noncondensable_gas"
 
 
+def test_the_tanks_own_physics_is_named_as_the_models_form_never_as_a_cause():
+    from tankode.mechanisms import MECHANISMS
+
+    th = Thresholds()
+    form = {m for m, cls in MECHANISMS.items() if cls.model_form}
+    assert {"dry_wall_heating", "dry_wall_node", "thermal_stratification", "surface_layer"} <= form
+    assert not form & {"heat_leak_vapor", "vapor_leak", "pressure_sensor_bias", "noncondensable_gas",
+                       "temperature_sensor_bias", "wall_heat_capacity_error", "inflow_meter_bias"}
+    for m in ("dry_wall_heating", "dry_wall_node", "thermal_stratification"):
+        v = decide(Inventory(()), [_cand(m, value=0.5)], th)
+        assert (v.kind, v.name, v.candidates) == ("model_form", m, (m,)), v
+        assert v.sentence.startswith("no cause:") and v.estimate.value == 0.5
+    # a fault outranked by the model's form is not named, and what the audit measures still decides
+    assert decide(Inventory(()), [_cand("dry_wall_heating"), _cand("pressure_sensor_bias")], th).kind == "model_form"
+    inv = Inventory((), cause="vapor_leak", estimate=Estimate(5e-4, 2e-5), unit="kg/s")
+    assert decide(inv, [_cand("dry_wall_heating")], th).name == "vapor_leak"
+
+
 def test_a_dynamic_estimate_outside_the_audits_interval_is_ruled_out():
     from tankode.diagnosis.audit import RunAudit
 

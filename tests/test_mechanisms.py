@@ -206,6 +206,31 @@ def test_sensor_offsets_enter_the_observation_and_the_initial_state():
     too_much = 1.01 * run.initial.p_v_Pa * float(s[5]) / (R_J_PER_MOLK * run.initial.T_v_K)
     with pytest.raises(SimulationError, match=r"initial hydrogen pressure \[-.*\] Pa is not positive.* at t = 0 s"):
         simulate(run, mechanisms=[make_mechanism("noncondensable_gas", n_mol=too_much)], output_dt_s=60.0)
+    # A liquid thermometer reading b high: the reading at t0 is the run's, the liquid starts b
+    # colder, and every reading is the liquid's own temperature plus b.
+    b = 0.3
+    hot = simulate(run, mechanisms=[make_mechanism("temperature_sensor_bias", bias_K=b)], output_dt_s=60.0)
+    assert float(hot.observations[0, 0, 2]) == pytest.approx(run.initial.T_l_K, abs=2e-4)  # the surrogate's T
+    assert float(base.states[0, 0, 3] - hot.states[0, 0, 3]) > 0  # less internal energy in the liquid
+    assert torch.allclose(hot.observations[0, :, 2] - model.observe(hot.states)[0, :, 2],
+                          torch.full_like(hot.observations[0, :, 2], b), atol=1e-9)
+
+
+def test_a_saturated_start_takes_a_reading_above_saturation_down_to_it_and_leaves_a_subcooled_one():
+    import dataclasses
+
+    import CoolProp.CoolProp as CP
+
+    run = get_case("case1").until(300.0)
+    T_sat = CP.PropsSI("T", "P", run.initial.p_v_Pa, "Q", 0, run.fluid)
+    hot = run.replace(initial=dataclasses.replace(run.initial, T_l_K=T_sat + 0.1))
+    for share, expected in ((1.0, T_sat), (0.5, T_sat + 0.05), (0.0, T_sat + 0.1)):
+        sol = simulate(hot, mechanisms=[make_mechanism("saturated_start", share=share)], output_dt_s=60.0)
+        # the liquid's own temperature at t0 (the observation, within the surrogate's 2e-4 K)
+        assert float(sol.observations[0, 0, 2]) == pytest.approx(expected, abs=3e-4), share
+    cold = simulate(run, mechanisms=[make_mechanism("saturated_start", share=1.0)], output_dt_s=60.0)
+    assert run.initial.T_l_K < T_sat
+    assert float(cold.observations[0, 0, 2]) == pytest.approx(run.initial.T_l_K, abs=3e-4)
 
 
 def test_per_environment_values_match_separate_runs():

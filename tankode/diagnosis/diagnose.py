@@ -124,8 +124,11 @@ class Thresholds:
 # slope at 0, where the score test looks. They are considered when asked for (``candidates``,
 # ``--candidates``), with a fit started from a layer. ``dry_wall_node`` is a default candidate: hidden
 # in case 3 it is found (tests/test_diagnosis.py).
+# ``temperature_sensor_bias``: the inventory audit decides the liquid thermometer's offset (and
+# names it); as a dynamic candidate it would compete with every closure error in T_l.
+# ``saturated_start`` sets only the initial state of a run that starts from a quiescent tank.
 OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer",
-                           "two_node_wall", "saturated_boiling")
+                           "two_node_wall", "saturated_boiling", "temperature_sensor_bias", "saturated_start")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
 
@@ -242,7 +245,8 @@ class Diagnosis:
     """Everything the diagnosis found; ``tankode.diagnosis.report`` writes it out.
 
     ``verdict`` says what is named (a cause, a measured quantity with indistinguishable
-    candidates, or nothing) and on what evidence; ``cause`` is the named mechanism id or None;
+    candidates, the model's form, or nothing) and on what evidence; ``cause`` is the named
+    cause's mechanism id or None (None for the model's form: ``named`` then gives it);
     ``audits`` the inventory audit of each run. Where the dynamic search could not start (an
     initial state the model cannot integrate), ``baseline`` is empty, ``ranking`` too, and
     ``dynamic_notes`` says why.
@@ -283,8 +287,13 @@ class Diagnosis:
             "thresholds": asdict(self.thresholds),
         }
 
+    @property
+    def named(self) -> str | None:
+        """The mechanism the extended model adds: the cause, or the model's form (``Verdict.kind``)."""
+        return self.verdict.name if self.verdict.kind in ("cause", "model_form") else None
+
     def extended_model(self):
-        """``(closure, mechanisms)`` of the extended model (the baseline's if no cause was named)."""
+        """``(closure, mechanisms)`` of the extended model (the baseline's if nothing was named)."""
         f = self.extended_fit if self.extended_fit is not None else self.baseline_fit
         if f is None:  # the dynamic search could not start: the base closure as it is
             return self.problem.build([], np.zeros(0))
@@ -506,21 +515,22 @@ def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConf
     verdict = decide(inv, ranking, config.thresholds)
     say(f"verdict: {verdict.sentence}")
     cause = verdict.name if verdict.kind == "cause" else None
-    first = next((c for c in ranking if c.mechanism == cause), None)
-    alternatives = [c.mechanism for c in ranking if c.passes and c.mechanism != cause and first is not None
+    named = verdict.name if verdict.kind in ("cause", "model_form") else None  # the extended model's mechanism
+    first = next((c for c in ranking if c.mechanism == named), None)
+    alternatives = [c.mechanism for c in ranking if c.passes and c.mechanism != named and first is not None
                     and c.delta_bic - first.delta_bic < config.thresholds.alternative_bic] \
-        if cause and first is not None and first.refit else []
+        if named and first is not None and first.refit else []
 
     extended_fit = ext_pred = extended = None
-    if cause in fits:
-        ext, _ = fits[cause]
+    if named in fits:
+        ext, _ = fits[named]
         all_data = np.ones_like(folds.heldout)
         extended_fit = fit(problem, ext.params, ext.values, all_data, config.max_iterations)
-        ext_pred = _stitch(fits[cause][1], extended_fit.pred, folds.heldout)
+        ext_pred = _stitch(fits[named][1], extended_fit.pred, folds.heldout)
         c = first
         extended = {
-            "mechanism": cause,
-            "params": _mech_values(extended_fit, cause), "params_std": _mech_values(extended_fit, cause, std=True),
+            "mechanism": named,
+            "params": _mech_values(extended_fit, named), "params_std": _mech_values(extended_fit, named, std=True),
             "closure_factors": _factors(extended_fit),
             "heldout_loss": c.heldout_loss, "heldout_loss_by_channel": c.heldout_loss_by_channel,
             "residuals": residual_report(problem.sensor_obs, ext_pred, folds.heldout),

@@ -63,7 +63,8 @@ def write_report(d: Diagnosis, out_dir, fluid: str) -> dict:
     paths["figures"] = figs
     closure, mechanisms = d.extended_model()
     save_model(paths["model"], closure, fluid, {
-        "diagnosis": {"cause": d.cause, "runs": list(d.runs), "split": d.split},
+        "diagnosis": {"cause": d.cause, "model_form": d.named if d.verdict.kind == "model_form" else None,
+                      "runs": list(d.runs), "split": d.split},
         "note": "closure = the base closure times the calibrated factors; mechanisms with their fitted values",
     }, mechanisms=mechanisms)
     paths["json"].write_text(json.dumps(_finite(d.to_json()), indent=2) + "\n")
@@ -83,8 +84,12 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     elif v.kind == "unresolved":
         L.append(f"**Measured, not located: {v.sentence}.** Candidates: "
                  + ", ".join(f"`{c}`" for c in v.candidates) + ".")
+    elif v.kind == "model_form":
+        L.append(f"**No cause; the model's form: `{d.named}`** ({v.source}): "
+                 f"{v.sentence.removeprefix('no cause: ')}. This is the tank's own physics, not a fault: the "
+                 "extended model (model/) carries it.")
     L += [f"{n[0].upper() + n[1:]}." for n in v.notes]
-    if d.cause and d.extended and v.source != "inventory audit" and d.ranking and d.ranking[0].mechanism == d.cause:
+    if d.named and d.extended and v.source != "inventory audit" and d.ranking and d.ranking[0].mechanism == d.named:
         c = d.ranking[0]
         ps = ", ".join(f"{k} = {val:.4g} +- {d.extended['params_std'][k]:.2g}" for k, val in d.extended["params"].items())
         L.append(f"Fitted on all data: {ps}. It lowers the held-out loss by "
@@ -94,16 +99,16 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
             alts = [a for a in d.ranking if a.mechanism in d.alternatives]
             L.append("Not ruled out: " + ", ".join(
                 f"`{a.mechanism}` (dBIC {a.delta_bic:.1f}, held-out gain {a.heldout_gain:.2f})" for a in alts)
-                + f" also clears every threshold, within {d.thresholds.alternative_bic:g} of the cause's dBIC: "
-                "the data favour the cause but do not exclude these; a measurement that tells them apart "
+                + f" also clears every threshold, within {d.thresholds.alternative_bic:g} of the named one's dBIC: "
+                "the data favour it but do not exclude these; a measurement that tells them apart "
                 "(see each mechanism's signature) would settle it.")
     elif v.kind == "none":
         L.append(f"**No cause**: {v.sentence.removeprefix('no cause: ')}.")
-    if d.cause is None and d.unexplained:
+    if d.named is None and d.unexplained:
         L.append("Channels still beyond the noise on held-out data: " + ", ".join(
             f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"
             for u in d.unexplained) + ".")
-    elif d.cause is None and d.baseline_fit is not None:
+    elif d.named is None and d.baseline_fit is not None:
         L.append("The calibrated baseline predicts the held-out data within the noise.")
     L += [f"{n[0].upper() + n[1:]}." for n in d.dynamic_notes]
     L += [""] + audit_markdown(d)
@@ -124,9 +129,10 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
           "|---|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(d.ranking, 1):
         est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
-        verdict = "cause" if c.passes and c.mechanism == d.cause else ("passes" if c.passes else "; ".join(c.reasons)
-                                                                        or "not refitted")
-        if c.passes and c.mechanism != d.cause and d.verdict.kind != "cause":
+        named = d.verdict.kind.replace("_", " ")  # "cause" or "model form"
+        verdict = named if c.passes and c.mechanism == d.named else ("passes" if c.passes else "; ".join(c.reasons)
+                                                                     or "not refitted")
+        if c.passes and c.mechanism != d.named and d.verdict.kind not in ("cause", "model_form"):
             verdict = "passes; not named (the verdict rests on the inventory audit)"
         gain = (f"{c.heldout_gain:.3f} [{c.heldout_gain_ci[0]:.3f}, {c.heldout_gain_ci[1]:.3f}]"
                 if c.refit else "")
@@ -250,7 +256,8 @@ def _heldout_rms_table(d: Diagnosis) -> list[str]:
     if best is None:
         return []
     base = heldout_rms_sigma(d.baseline["residuals"])
-    role = "the cause" if best.mechanism == d.cause else "best refitted, not named"
+    role = ("the cause" if best.mechanism == d.cause else "the model's form" if best.mechanism == d.named
+            else "best refitted, not named")
     L = ["", f"## Held-out RMS per run and channel [sensor sigma]: baseline and `{best.mechanism}` ({role})", "",
          f"| run | channel | baseline | with `{best.mechanism}` |", "|---|---|---|---|"]
     for run, chans in best.heldout_rms_sigma.items():
@@ -273,7 +280,7 @@ def _plot_prediction(d: Diagnosis, e: int, path) -> None:
                         alpha=0.15, lw=0)
         ax.plot(t, d.baseline_pred[e, :, c] * k, color="tab:red", lw=1.2, label="baseline +- 1 sigma")
         if d.extended_pred is not None:
-            ax.plot(t, d.extended_pred[e, :, c] * k, color="tab:blue", lw=1.2, label=f"with {d.cause}")
+            ax.plot(t, d.extended_pred[e, :, c] * k, color="tab:blue", lw=1.2, label=f"with {d.named}")
         if held.any():
             ax.axvspan(t[held][0], t[held][-1], color="0.9", zorder=0, label="held out")
         ax.set_ylabel(f"{label} [{unit}]")
@@ -287,7 +294,7 @@ def _plot_residuals(d: Diagnosis, e: int, path) -> None:
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 1.9 * len(chans)), sharex=True, squeeze=False)
     t = obs.t_s / 60.0
     for ax, c in zip(axes[:, 0], chans):
-        for pred, color, name in ((d.baseline_pred, "tab:red", "baseline"), (d.extended_pred, "tab:blue", d.cause)):
+        for pred, color, name in ((d.baseline_pred, "tab:red", "baseline"), (d.extended_pred, "tab:blue", d.named)):
             if pred is None:
                 continue
             z = (pred[e, :, c] - obs.y[e, :, c]) / obs.sigma[e, c]
@@ -320,7 +327,7 @@ def _plot_heldout(d: Diagnosis, path) -> None:
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.bar(x - 0.2, [base[c] for c in chans], 0.4, color="tab:red", label="baseline")
     if ext:
-        ax.bar(x + 0.2, [ext[c] for c in chans], 0.4, color="tab:blue", label=f"with {d.cause}")
+        ax.bar(x + 0.2, [ext[c] for c in chans], 0.4, color="tab:blue", label=f"with {d.named}")
     ax.axhline(0.5, color="k", ls="--", lw=0.8, label="noise floor (0.5)")
     ax.set_xticks(x, [_UNITS[c][0] for c in chans])
     ax.set_ylabel("held-out loss (half mean squared residual / sigma^2)")

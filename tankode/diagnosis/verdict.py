@@ -16,6 +16,10 @@ Mechanisms are of two kinds:
   dynamic search may narrow that list to one (``locate``) only where it clearly separates them.
 * **Other mechanisms** (sensor biases, an inert gas, stratification, the dry wall's share) leave
   the inventory unchanged; only the dynamic search can name them.
+* **The model's form.** A tank's own physics that the baseline lacks (a dry wall that heats the
+  ullage, a stratified liquid: ``Mechanism.model_form``) is not a cause: another simulator's
+  tank or a real one with nothing wrong has it. Where the dynamic search names one, the
+  verdict is ``model_form`` (no cause), and the extended model carries the mechanism.
 
 The dynamic search names a candidate only if it clears ``Thresholds`` (``diagnose.py``) and two
 more conditions:
@@ -44,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..mechanisms import MECHANISMS
 from .audit import HEAT_CANDIDATES, Estimate, RunAudit
 
 # Inventory mechanisms and the audit hypothesis that measures each (the value a dynamic fit's
@@ -66,8 +71,10 @@ class Verdict:
 
     Attributes:
         kind: ``"cause"`` (one mechanism named), ``"unresolved"`` (a measured quantity whose
-            candidates the data do not tell apart) or ``"none"``.
-        name: the mechanism id (a cause), the finding's name (``unmetered_heat``,
+            candidates the data do not tell apart), ``"model_form"`` (no cause; a mechanism of
+            the tank's build, ``Mechanism.model_form``, that the baseline lacks: the extended
+            model carries it) or ``"none"``.
+        name: the mechanism id (a cause or the model's form), the finding's name (``unmetered_heat``,
             ``unmetered_mass``, ``inert_gas_or_sensor_bias``), or None.
         estimate: the named quantity with its standard error, in ``unit``; None where unmeasured.
         candidates: the mechanisms the verdict is consistent with (one for a cause).
@@ -251,14 +258,19 @@ def decide(inv: Inventory, ranking, thresholds) -> Verdict:
 
 
 def _dynamic(c) -> Verdict:
+    """A cause, or for a mechanism of the tank's build (``Mechanism.model_form``) the model's form."""
     from .forward import mechanism_params
 
     name, value = next(iter(c.params.items()))
     e = Estimate(value, c.params_std[name])
     unit = mechanism_params(c.mechanism)[0].unit
-    return Verdict("cause", c.mechanism, e, unit, (c.mechanism,), "dynamic search",
-                   f"{name} = {_fmt(e, unit)}; with it the model predicts the held-out data within the noise "
-                   f"(held-out gain {c.heldout_gain:.2f}, dBIC {c.delta_bic:.0f})")
+    evidence = (f"{name} = {_fmt(e, unit)}; with it the model predicts the held-out data within the noise "
+                f"(held-out gain {c.heldout_gain:.2f}, dBIC {c.delta_bic:.0f})")
+    if MECHANISMS[c.mechanism].model_form:
+        return Verdict("model_form", c.mechanism, e, unit, (c.mechanism,), "dynamic search",
+                       f"no cause: nothing unmetered beyond the noise and no fault; the tank has physics the "
+                       f"baseline model lacks, {c.mechanism} ({MECHANISMS[c.mechanism].signature}): {evidence}")
+    return Verdict("cause", c.mechanism, e, unit, (c.mechanism,), "dynamic search", evidence)
 
 
 _PLACE = {"heat_leak_wall": "the wall", "heat_leak_liquid": "the liquid", "heat_leak_vapor": "the ullage"}
@@ -273,7 +285,7 @@ def _fmt(e: Estimate | None, unit: str) -> str:
     if e is None:
         return "(not measured)"
     std = f" +- {e.std:.2g}" if math.isfinite(e.std) else ""
-    return f"{e.value:.3g}{std} {unit}".rstrip()
+    return f"{e.value:.3g}{std} {unit if unit != '1' else ''}".rstrip()  # "1": dimensionless
 
 
 __all__ = ["Verdict", "Inventory", "inventory", "decide", "audit_consistency", "INVENTORY", "HEAT_CANDIDATES"]

@@ -15,7 +15,8 @@ from .heat_leaks import HeatLeakLiquid, HeatLeakVapor, HeatLeakWall
 from .leaks import LiquidLeak, VaporLeak
 from .noncondensable import NoncondensableGas
 from .saturated_boiling import SaturatedBoiling
-from .sensors import InflowMeterBias, PressureSensorBias
+from .saturated_start import SaturatedStart
+from .sensors import InflowMeterBias, PressureSensorBias, TemperatureSensorBias
 from .stratification import ThermalStratification
 from .surface_layer import SurfaceLayer
 from .two_node_wall import TwoNodeWall
@@ -26,7 +27,7 @@ MECHANISMS: dict[str, type[Mechanism]] = {
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
               WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
               SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode, TwoNodeWall,
-              SaturatedBoiling)
+              SaturatedBoiling, TemperatureSensorBias, SaturatedStart)
 }
 
 
@@ -57,5 +58,5 @@ __all__ = [
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
     "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode", "TwoNodeWall",
-    "SaturatedBoiling",
+    "SaturatedBoiling", "TemperatureSensorBias", "SaturatedStart",
 ]

@@ -19,6 +19,10 @@ It acts through hooks of ``TankModel``, each a no-op by default:
 * ``pressure_offset_Pa``: what the pressure sensor reads beyond the hydrogen's own pressure
   (a bias, an inert gas). The run's initial pressure is a sensor reading too, so the same
   offset is removed from it when the initial state is built (``Fleet.initial_state``).
+* ``liquid_temperature_offset_K``: what the liquid thermometer reads beyond the liquid's
+  temperature (a bias); removed from the initial reading likewise.
+* ``initial_liquid_K``: the liquid's initial temperature from its (offset-corrected) reading
+  and the saturation temperature at the initial pressure (a liquid that starts saturated).
 
 Own states. A mechanism may carry ``states`` (a tuple of ``StateVar``) that the ODE integrates
 with the tank's: the model's state is then ``(env, 7 + n)``, the mechanisms' states after the
@@ -112,7 +116,11 @@ class Mechanism(nn.Module):
     """Base class of a candidate mechanism (see the module docstring for the hooks).
 
     Subclasses set ``id``, ``params`` (a tuple of ``Param``) and ``signature`` (how it shows
-    in the data), and override the hooks they act through.
+    in the data), and override the hooks they act through. ``model_form`` is True for physics
+    a tank has by its build (a dry wall that heats the ullage, a stratified liquid) rather than
+    a fault (a leak, unmetered heat, a faulty sensor or meter, an inert gas, a wrong stated
+    wall): the diagnosis reports such a mechanism as the model's form, never as a cause, since
+    another simulator's or a real tank with nothing wrong has it (``tankode.diagnosis.verdict``).
 
     Args:
         **values: parameter values by name (SI units); missing ones are 0 (absent).
@@ -125,6 +133,7 @@ class Mechanism(nn.Module):
     params: ClassVar[tuple[Param, ...]] = ()
     signature: ClassVar[str] = ""
     states: ClassVar[tuple[StateVar, ...]] = ()
+    model_form: ClassVar[bool] = False
 
     def __init__(self, **values: float):
         super().__init__()
@@ -215,6 +224,15 @@ class Mechanism(nn.Module):
     def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor) -> Tensor | float:
         """Sensor pressure minus hydrogen pressure (Pa) for ullage temperature and volume ``(...)``."""
         return 0.0
+
+    def liquid_temperature_offset_K(self, T_l_K: Tensor) -> Tensor | float:
+        """Liquid thermometer reading minus the liquid's temperature (K) for liquid temperatures ``(...)``."""
+        return 0.0
+
+    def initial_liquid_K(self, T_l_K: Tensor, T_sat_K: Tensor) -> Tensor:
+        """The liquid's initial temperature ``(env,)`` (K) from its initial reading (less any thermometer
+        offset) and the saturation temperature at the initial pressure, both ``(env,)``."""
+        return T_l_K
 
 
 __all__ = ["Mechanism", "Param", "Start", "StateVar"]

@@ -33,6 +33,7 @@ class DryWallHeating(Mechanism):
     """
 
     id = "dry_wall_heating"
+    model_form = True
     params = (Param("phi", "1", 0.0, 1.0, 0.1),)
     signature = "T_v and pressure rise faster under a heat load, most at low fill; T_w and T_l lag"
 

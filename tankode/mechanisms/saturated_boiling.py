@@ -41,6 +41,7 @@ class SaturatedBoiling(Mechanism):
     """
 
     id = "saturated_boiling"
+    model_form = True
     params = (Param("share", "1", 0.0, 1.0, 0.1),)
     signature = "through a vent or a drain T_l follows T_sat(p) and the pressure levels off sooner"
 

@@ -1,4 +1,4 @@
-"""Instrument errors: a biased pressure sensor and a biased inflow meter."""
+"""Instrument errors: a biased pressure sensor, a biased liquid thermometer and a biased inflow meter."""
 
 from __future__ import annotations
 
@@ -22,6 +22,28 @@ class PressureSensorBias(Mechanism):
         return self.param(0, T_v_K)
 
 
+class TemperatureSensorBias(Mechanism):
+    """The liquid thermometer reads T_l + b (K), also at t0 (the run's initial liquid temperature).
+
+    Physics: none changes; the observation operator adds b to the liquid's temperature, and the
+    initial state is built from the initial reading minus b. A liquid that reads above
+    saturation at the initial pressure of a quiescent tank (it would be boiling) is the classic
+    sign: the NASA MHTB tests' thermometers read 0.05-0.10 K above para-hydrogen's saturation
+    at their start (``experiments/mhtb_rotations.py``). The inventory audit estimates the same
+    offset (``tankode.diagnosis.audit``), which names ``temperature_sensor_bias``.
+
+    Signature: a constant liquid temperature offset from t0; a liquid start b away from the
+    reading changes the interface's condensation or evaporation at first, hence the pressure.
+    """
+
+    id = "temperature_sensor_bias"
+    params = (Param("bias_K", "K", -5.0, 5.0, 0.1),)
+    signature = "constant liquid temperature offset from t0; the early pressure as if the liquid started b away"
+
+    def liquid_temperature_offset_K(self, T_l_K):
+        return self.param(0, T_l_K)
+
+
 class InflowMeterBias(Mechanism):
     """The true vapour and liquid inflows are (1 + beta) times the metered ones.
 
@@ -38,4 +60,4 @@ class InflowMeterBias(Mechanism):
         return forcing._replace(mdot_v_in_kg_s=forcing.mdot_v_in_kg_s * f, mdot_l_in_kg_s=forcing.mdot_l_in_kg_s * f)
 
 
-__all__ = ["PressureSensorBias", "InflowMeterBias"]
+__all__ = ["PressureSensorBias", "TemperatureSensorBias", "InflowMeterBias"]

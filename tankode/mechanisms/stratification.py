@@ -20,6 +20,7 @@ class ThermalStratification(Mechanism):
     """
 
     id = "thermal_stratification"
+    model_form = True
     params = (Param("dT_K", "K", 0.0, 5.0, 0.1),)
     signature = "pressure above the model, growing when h_li is large"
 

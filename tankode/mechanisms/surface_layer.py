@@ -45,6 +45,7 @@ class SurfaceLayer(Mechanism):
     """
 
     id = "surface_layer"
+    model_form = True
     params = (
         Param("inv_thickness_1_per_m", "1/m", 0.0, 1000.0, 50.0),
         Param("wall_share", "1", 0.0, 1.0, 0.1),
