@@ -426,7 +426,9 @@ def test_a_node_the_h_wv_factor_mimics_is_found_once_that_factor_is_held():
     correlation, which is the truth here, the node is named within 25 % (measured: 0.118 for 0.1)."""
     data = _data("case2", "dry_wall_node", 0.1, 16)
     assert diagnose([data]).named is None
-    d = diagnose([data], config=DiagnosisConfig(hold=("h_wv",)))
+    # the node's linearised fit leaves chi2 7.3 per observation, above the default ``reachable``
+    # (a one-step estimate of a strongly non-linear parameter); its refit reaches the noise
+    d = diagnose([data], config=DiagnosisConfig(hold=("h_wv",), reachable=10.0))
     _check_found(d, "dry_wall_node", 0.1)
     assert d.baseline["closure_factors"]["h_wv_factor"] == 1.0
 
@@ -453,14 +455,19 @@ def test_on_mhtb_from_its_samples_a_sensor_bias_outranked_by_the_dry_wall_node_i
     from tankode.diagnosis import LeaveOneRunOut
 
     runs = [read_run(MHTB / f"{n}.json").with_measured_initial() for n in ("P263968K", "P263981D")]
+    # ``reachable`` lifted: the rule it tests judges the refits, which the default would skip here
+    # (the calibrated baseline misses these tests by chi2 of order 100 per observation)
     config = DiagnosisConfig(candidates=("pressure_sensor_bias", "dry_wall_node"), split=LeaveOneRunOut(),
-                             max_iterations=8, max_iterations_refit=8, block_s=3600.0)
+                             max_iterations=8, max_iterations_refit=8, block_s=3600.0, reachable=1e6)
     d = diagnose(runs, config=config)
     by = {c.mechanism: c for c in d.ranking}
     bias, node = by["pressure_sensor_bias"], by["dry_wall_node"]
     assert node.delta_bic < bias.delta_bic - 1e4 and node.heldout_gain_ci[0] > 0 and not node.passes
-    # the bias clears everything else (a 17.7 kPa offset on a 300 Pa sensor) and is withdrawn
-    assert [r for r in bias.reasons if not r.startswith("outranked by dry_wall_node")] == []
+    # the bias clears every threshold of the evidence (a 17.7 kPa offset on a 300 Pa sensor) and is
+    # withdrawn as outranked; it also leaves the model far from the held-out data (adequacy)
+    assert any(r.startswith("outranked by dry_wall_node") for r in bias.reasons), bias.reasons
+    assert all(r.startswith(("outranked by dry_wall_node", "with it the model still misses the held-out data"))
+               for r in bias.reasons), bias.reasons
     assert bias.params["bias_Pa"] == pytest.approx(17.7e3, rel=0.1)
     assert d.named is None and d.ranking[0].mechanism == "dry_wall_node"
     # unresolved because the data fix only its combination with the h_wv factor

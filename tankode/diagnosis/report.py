@@ -127,9 +127,9 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
     L += ["## Dynamic search: candidates", "",
           "| rank | mechanism | estimate | score | dBIC | LR | held-out gain [95 % CI] | explained | verdict |",
           "|---|---|---|---|---|---|---|---|---|"]
+    named = d.verdict.kind.replace("_", " ")  # "cause" or "model form" for the named candidate
     for i, c in enumerate(d.ranking, 1):
         est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
-        named = d.verdict.kind.replace("_", " ")  # "cause" or "model form"
         verdict = named if c.passes and c.mechanism == d.named else ("passes" if c.passes else "; ".join(c.reasons)
                                                                      or "not refitted")
         if c.passes and c.mechanism != d.named and d.verdict.kind not in ("cause", "model_form"):
