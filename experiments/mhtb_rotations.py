@@ -21,8 +21,8 @@ What is fixed besides: the tank's geometry, the shell's heat capacity (estimated
 aluminium shell, ``tankode.wall``), the measured heat load and the 0D model; each test starts
 from its metadata. For each rotation the law is calibrated (Levenberg-Marquardt,
 ``tankode.diagnosis.fit``) on two tests as one fleet, each channel's sigma then re-estimated as
-max(sensor noise, the fit's RMS residual) and the fit repeated (``ModelError``, up to
-``ROUNDS`` fits: the ullage temperature, which the well-mixed ullage cannot follow, no longer
+max(sensor noise, the fit's RMS residual) and the fit repeated (``ModelError``, at most its
+``rounds`` times: the ullage temperature, which the well-mixed ullage cannot follow, no longer
 outweighs the pressure), and it predicts the third test from its metadata and inputs alone; the
 pressure, ullage and liquid temperature RMSE are scored on the samples the published
 energy-balance model (EBM) covers, beside the EBM's. Then the law is calibrated on all three
@@ -76,8 +76,10 @@ FIXED = {("dry_wall_heating", "phi"): 1.0, (LAYER, "wall_share"): 1.0, ("saturat
 # (mechanism, parameter) -> where the fit starts: a 2 cm layer renewed by a thousandth of the flow
 LEARNED = {(LAYER, "inv_thickness_1_per_m"): 50.0, (LAYER, "renewal_share"): 1e-3}
 MAX_ITERATIONS = 16  # Levenberg-Marquardt iterations per fit (each fit converged in 2-4)
-ROUNDS = 3  # fits with re-estimated sigmas (stops earlier once they move less than ModelError's tolerance)
-QUICK_UNTIL_S = 3600.0  # --quick: every test cut to 1 h, one rotation, one iteration, one round
+# Each channel's sigma re-estimated from the fit's residuals and the fit repeated, ``rounds`` times
+# at most (stops once the sigmas move less than its tolerance).
+WEIGHTING = ModelError()
+QUICK_UNTIL_S = 3600.0  # --quick: every test cut to 1 h, one rotation, one iteration, no re-weighting
 # -----------------------------------------------------------------------------------------------
 
 
@@ -97,18 +99,17 @@ def _params() -> list:
     return out
 
 
-def calibrate(runs, iterations: int = MAX_ITERATIONS, rounds: int = ROUNDS):
+def calibrate(runs, iterations: int = MAX_ITERATIONS, reweightings: int = WEIGHTING.rounds):
     """The law calibrated on ``runs`` (one fleet): ``(closure, mechanisms, values by label, fit status)``."""
     params = _params()
     start = {**FIXED, **LEARNED}
-    x = np.array([start[(p.owner, p.name)] for p in params])
     problem = Problem(Fleet.from_runs(runs))
     every_sample = np.ones(problem.obs.y.shape[:2], bool)  # (env, T)
-    for _ in range(rounds):
-        f = fit(problem, params, x, every_sample, iterations)
-        x = f.values
-        if not reweigh(problem, ModelError(), f.pred, every_sample):
+    f = fit(problem, params, np.array([start[(p.owner, p.name)] for p in params]), every_sample, iterations)
+    for _ in range(reweightings):
+        if not reweigh(problem, WEIGHTING, f.pred, every_sample):
             break
+        f = fit(problem, params, f.values, every_sample, iterations)
     closure, mechanisms = problem.build(f.params, f.values)
     return closure, mechanisms, {p.label: float(v) for p, v in zip(f.params, f.values)}, f.status
 
@@ -128,7 +129,7 @@ def _scored(runs, names, ebm, closure, mechanisms, label, trained_on, held_out, 
 def main(argv=None) -> dict:
     args = study_args(argv, __doc__.splitlines()[0], "tests cut to 1 h, one rotation, one iteration", "mhtb_rotations")
     quick, out = args.quick, args.out
-    iterations, rounds = (1, 1) if quick else (MAX_ITERATIONS, ROUNDS)
+    iterations, reweightings = (1, 0) if quick else (MAX_ITERATIONS, WEIGHTING.rounds)
     runs = _runs(quick)
     ebm = ebm_predictions(list(runs.values()))
     rows = []
@@ -142,13 +143,13 @@ def main(argv=None) -> dict:
         for held in names[:1] if quick else names:
             train = tuple(n for n in names if n != held)
             start = time.perf_counter()
-            closure, mechanisms, values, status = calibrate([runs[n] for n in train], iterations, rounds)
+            closure, mechanisms, values, status = calibrate([runs[n] for n in train], iterations, reweightings)
             r, p = _scored(runs, (held,), ebm, closure, mechanisms, "calibrated on the other two", train, True,
                            values, time.perf_counter() - start)
             rows += r
             predicted.update({(n, "held out"): obs for n, obs in p.items()})
         start = time.perf_counter()
-        closure, mechanisms, values, status = calibrate([runs[n] for n in names], iterations, rounds)
+        closure, mechanisms, values, status = calibrate([runs[n] for n in names], iterations, reweightings)
         wall_s = time.perf_counter() - start
         save_model(out / "model", closure, runs[names[0]].fluid,
                    {"calibrated_on": list(names), "fit": status, "values": values}, mechanisms=mechanisms)

@@ -38,6 +38,13 @@ def sampling_interval_s(run) -> float:
     return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
 
 
+
+def _less(readings: np.ndarray, offsets) -> np.ndarray:
+    """``readings`` ``(env,)`` less each of the mechanisms' ``offsets`` (floats, 0-d or ``(env,)`` tensors)."""
+    for off in offsets:
+        readings = readings - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), readings.shape)
+    return readings
+
 @dataclass(frozen=True)
 class Fleet:
     """Runs of one fluid integrated together as environments of a batched ODE.
@@ -147,26 +154,21 @@ class Fleet:
         V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
         T_v = np.array([i.T_v_K for i in ini])
         V_l = V * np.array([i.fill_ratio for i in ini])
-        p = np.array([i.p_v_Pa for i in ini])
-        for m in mechanisms:
-            with torch.no_grad():
-                off = m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l))
-            p = p - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), p.shape)
         T_l = np.array([i.T_l_K for i in ini])
-        for m in mechanisms:  # the initial liquid temperature is a reading too
-            with torch.no_grad():
-                off = m.liquid_temperature_offset_K(torch.as_tensor(T_l))
-            T_l = T_l - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), T_l.shape)
-        if (p > 0).all() and any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms):
-            T_sat = torch.as_tensor(self.reference.saturation(p)["T_sat"])
-            for m in mechanisms:
-                with torch.no_grad():
+        with torch.no_grad():
+            p = _less(np.array([i.p_v_Pa for i in ini]),
+                      [m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l)) for m in mechanisms])
+            if (p <= 0).any():
+                # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
+                # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
+                raise SimulationError(f"initial hydrogen pressure {p} Pa is not positive after removing the "
+                                      "mechanisms' pressure offsets from the initial reading", t_s=self.t0_s)
+            # the initial liquid temperature is a reading too
+            T_l = _less(T_l, [m.liquid_temperature_offset_K(torch.as_tensor(T_l)) for m in mechanisms])
+            if any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms):
+                T_sat = torch.as_tensor(self.reference.saturation(p)["T_sat"])  # CoolProp: only where asked for
+                for m in mechanisms:
                     T_l = m.initial_liquid_K(torch.as_tensor(T_l), T_sat).numpy()
-        if (p <= 0).any():
-            # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
-            # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
-            raise SimulationError(f"initial hydrogen pressure {p} Pa is not positive after removing the mechanisms' "
-                                  "pressure offsets from the initial reading", t_s=self.t0_s)
         return self.state_from(p, T_v, T_l, np.array([i.T_w0_K for i in ini]), V_l)
 
     def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:

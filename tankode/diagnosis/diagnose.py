@@ -290,7 +290,7 @@ class Diagnosis:
     @property
     def named(self) -> str | None:
         """The mechanism the extended model adds: the cause, or the model's form (``Verdict.kind``)."""
-        return self.verdict.name if self.verdict.kind in ("cause", "model_form") else None
+        return self.verdict.named
 
     def extended_model(self):
         """``(closure, mechanisms)`` of the extended model (the baseline's if nothing was named)."""
@@ -515,7 +515,7 @@ def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConf
     verdict = decide(inv, ranking, config.thresholds)
     say(f"verdict: {verdict.sentence}")
     cause = verdict.name if verdict.kind == "cause" else None
-    named = verdict.name if verdict.kind in ("cause", "model_form") else None  # the extended model's mechanism
+    named = verdict.named  # the extended model's mechanism
     first = next((c for c in ranking if c.mechanism == named), None)
     alternatives = [c.mechanism for c in ranking if c.passes and c.mechanism != named and first is not None
                     and c.delta_bic - first.delta_bic < config.thresholds.alternative_bic] \

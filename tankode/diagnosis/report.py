@@ -63,7 +63,7 @@ def write_report(d: Diagnosis, out_dir, fluid: str) -> dict:
     paths["figures"] = figs
     closure, mechanisms = d.extended_model()
     save_model(paths["model"], closure, fluid, {
-        "diagnosis": {"cause": d.cause, "model_form": d.named if d.verdict.kind == "model_form" else None,
+        "diagnosis": {"cause": d.cause, "model_form": d.named if d.cause is None else None,
                       "runs": list(d.runs), "split": d.split},
         "note": "closure = the base closure times the calibrated factors; mechanisms with their fitted values",
     }, mechanisms=mechanisms)
@@ -132,7 +132,7 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
         est = ", ".join(f"{k} = {v:.3g} +- {c.params_std.get(k, float('nan')):.2g}" for k, v in c.params.items())
         verdict = named if c.passes and c.mechanism == d.named else ("passes" if c.passes else "; ".join(c.reasons)
                                                                      or "not refitted")
-        if c.passes and c.mechanism != d.named and d.verdict.kind not in ("cause", "model_form"):
+        if c.passes and d.named is None:
             verdict = "passes; not named (the verdict rests on the inventory audit)"
         gain = (f"{c.heldout_gain:.3f} [{c.heldout_gain_ci[0]:.3f}, {c.heldout_gain_ci[1]:.3f}]"
                 if c.refit else "")

@@ -93,6 +93,11 @@ class Verdict:
     sentence: str
     notes: tuple[str, ...] = field(default=())
 
+    @property
+    def named(self) -> str | None:
+        """The mechanism the extended model adds: a cause's or the model's form's id, else None."""
+        return self.name if self.kind in ("cause", "model_form") else None
+
     def to_json(self) -> dict:
         return {"kind": self.kind, "name": self.name, "estimate": self.estimate.to_json() if self.estimate else None,
                 "unit": self.unit, "candidates": list(self.candidates), "source": self.source,
@@ -266,10 +271,11 @@ def _dynamic(c) -> Verdict:
     unit = mechanism_params(c.mechanism)[0].unit
     evidence = (f"{name} = {_fmt(e, unit)}; with it the model predicts the held-out data within the noise "
                 f"(held-out gain {c.heldout_gain:.2f}, dBIC {c.delta_bic:.0f})")
-    if MECHANISMS[c.mechanism].model_form:
+    mechanism = MECHANISMS[c.mechanism]
+    if mechanism.model_form:
         return Verdict("model_form", c.mechanism, e, unit, (c.mechanism,), "dynamic search",
                        f"no cause: nothing unmetered beyond the noise and no fault; the tank has physics the "
-                       f"baseline model lacks, {c.mechanism} ({MECHANISMS[c.mechanism].signature}): {evidence}")
+                       f"baseline model lacks, {c.mechanism} ({mechanism.signature}): {evidence}")
     return Verdict("cause", c.mechanism, e, unit, (c.mechanism,), "dynamic search", evidence)
 
 
