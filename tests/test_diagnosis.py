@@ -10,7 +10,7 @@ import pytest
 from tankode import get_case, simulate
 from tankode.diagnosis import DiagnosisConfig, bootstrap_gain, diagnose, ljung_box, write_report
 from tankode.diagnosis.residuals import spans_outside
-from tankode.mechanisms import make_mechanism
+from tankode.mechanisms import MECHANISMS, make_mechanism
 from tankode.synthetic import solution_to_runs
 
 from mhtb_data import MHTB, needs_mhtb
@@ -357,13 +357,27 @@ FAST = {"heat_leak_vapor", "vapor_leak"}
 
 def test_every_default_candidate_has_a_hidden_mechanism_test():
     from tankode.diagnosis import DEFAULT_CANDIDATES
-    from tankode.mechanisms import MECHANISMS
 
     assert sorted(h[1] for h in HIDDEN) == sorted(DEFAULT_CANDIDATES)
     # the mechanisms left out of the defaults (opt-in: experiments/README.md says why)
     assert set(MECHANISMS) - set(DEFAULT_CANDIDATES) == {"surface_layer", "boundary_layer_stratification", "growing_layer",
                                                        "diffusive_layer", "two_node_wall", "saturated_boiling",
                                                        "temperature_sensor_bias", "saturated_start"}
+
+
+def test_a_model_with_a_two_node_wall_is_not_extended_by_the_dry_wall_node():
+    """An assimilated agent carries the two-node wall; a massless dry-wall node beside it would model
+    the dry wall twice (and, at small sheet resistances, made a score test's perturbation leave the
+    property domain on a helium run of another simulator, ending the dynamic search)."""
+    from tankode.diagnosis import DEFAULT_CANDIDATES
+    from tankode.diagnosis.diagnose import testable
+
+    assert "dry_wall_node" in testable(DEFAULT_CANDIDATES, ())
+    left = testable(DEFAULT_CANDIDATES, (make_mechanism("two_node_wall"), make_mechanism("heat_leak_liquid")))
+    assert set(DEFAULT_CANDIDATES) - set(left) == {"dry_wall_node", "heat_leak_liquid"}
+    assert "two_node_wall" not in testable(("two_node_wall", "vapor_leak"), (make_mechanism("dry_wall_node"),))
+    for mid, cls in MECHANISMS.items():  # the relation is symmetric
+        assert all(mid in MECHANISMS[other].alternative_to for other in cls.alternative_to)
 
 
 def _data(case: str, mechanism: str | None, value: float, seed: int, noise: str = "low"):

@@ -462,6 +462,13 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                                    start, stop.stage)
 
 
+def testable(candidates, fixed) -> list[str]:
+    """The candidates the model with ``fixed`` mechanisms can be extended by: neither one it has,
+    nor an alternative model of physics it has (``Mechanism.alternative_to``)."""
+    have = {m.id for m in fixed}
+    return [c for c in candidates if c not in have and not have.intersection(MECHANISMS[c].alternative_to)]
+
+
 class _Stopped(Exception):
     """A simulation error that ended the dynamic search (``stage``: "could not start" or "stopped")."""
 
@@ -490,7 +497,7 @@ def _dynamic_search(fleet: Fleet, base_closure, fixed_mechanisms, config: Diagno
 def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConfig, inv: Inventory, audits,
             audit_notes, dynamic_notes: list, start: float, say) -> Diagnosis:
     obs = problem.obs
-    candidates = [c for c in config.candidates if c not in {m.id for m in problem.fixed}]
+    candidates = testable(config.candidates, problem.fixed)
     say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
     for line in folds.failed_starts:
         say(f"calibration start dropped: {line}")

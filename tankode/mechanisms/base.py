@@ -121,6 +121,9 @@ class Mechanism(nn.Module):
     a fault (a leak, unmetered heat, a faulty sensor or meter, an inert gas, a wrong stated
     wall): the diagnosis reports such a mechanism as the model's form, never as a cause, since
     another simulator's or a real tank with nothing wrong has it (``tankode.diagnosis.verdict``).
+    ``alternative_to`` names mechanisms that model the same physics another way (the dry wall
+    as a massless node or as a node with heat capacity): the diagnosis does not test this one
+    beside them, since the sum would count that physics twice.
 
     Args:
         **values: parameter values by name (SI units); missing ones are 0 (absent).
@@ -134,6 +137,7 @@ class Mechanism(nn.Module):
     signature: ClassVar[str] = ""
     states: ClassVar[tuple[StateVar, ...]] = ()
     model_form: ClassVar[bool] = False
+    alternative_to: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, **values: float):
         super().__init__()

@@ -54,6 +54,7 @@ class DryWallNode(Mechanism):
 
     id = "dry_wall_node"
     model_form = True
+    alternative_to = ("two_node_wall",)
     params = (Param("R_sheet_K_per_W", "K/W", 0.0, 1.0e3, 10.0),)
     signature = "T_v stays above T_l under a heat load (most at low fill); pressure rises faster; T_w lags"
 

@@ -68,6 +68,7 @@ class TwoNodeWall(Mechanism):
 
     id = "two_node_wall"
     model_form = True
+    alternative_to = ("dry_wall_node",)
     params = (Param("R_sheet_K_per_W", "K/W", 0.0, 1.0e4, 10.0),
               Param("start_share", "1", 0.0, 1.0, 1.0, initial=True))
     signature = "T_v above T_l under a heat load and after warm-gas injection; T_w (the mean) lags"
