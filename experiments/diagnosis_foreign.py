@@ -1,11 +1,12 @@
-"""The diagnosis on three simulators that share no code with tankode: what it names, against the truth.
+"""The diagnosis on four simulators that share no code with tankode: what it names, against the truth.
 
 Generates runs with ``tests/nodal_sim.py`` (through its command line: laws ``mcadams`` and
 ``paper_printed`` by default, four shapes and operations, low noise, each hidden mechanism, nulls),
 the fourteen runs of ``tests/independent_sim.py`` (seed 0, the magnitudes of its
 ``SCENARIO_FOR`` table; that module has no command line that writes runs, so a subprocess calls
 its public ``simulate_run``) and ``tests/cryo_sim.py``'s three named tanks (liquid nitrogen,
-methane and hydrogen; every hidden mechanism at the magnitudes of ``CRYO_MAGNITUDES``, nulls),
+methane and hydrogen; every hidden mechanism at the magnitudes of ``CRYO_MAGNITUDES``, nulls) and
+``tests/eng_sim.py``'s (an engineering property model: ``ENG_SCENARIOS``, ``ENG_MAGNITUDES``),
 diagnoses each with ``tankode.diagnosis.diagnose`` and writes
 
 * ``OUT/table.md`` and ``OUT/table.json``: simulator, scenario, law, hidden mechanism and value,
@@ -24,6 +25,7 @@ Usage::
     python experiments/diagnosis_foreign.py --out diag_foreign            # the whole table (~1-2 h)
     python experiments/diagnosis_foreign.py --out d --only nodal --laws mcadams --scenarios tank_4p9m3
     python experiments/diagnosis_foreign.py --out d --only cryo                  # 33 runs, three fluids
+    python experiments/diagnosis_foreign.py --out d --only eng                   # 77 runs, engineering properties
 """
 
 from __future__ import annotations
@@ -70,6 +72,15 @@ CRYO_MECHANISMS = {"heat_leak_liquid_W": "heat_leak_liquid", "heat_leak_vapor_W"
 # on nulls of seeds 1-6: heat 20-35 W on the 2 m3 and 8 m3 tanks); helium for 15 % of the initial pressure.
 CRYO_SCENARIOS = ("ln2_dewar", "lh2_hcyl", "lch4_sphere")
 CRYO_MAGNITUDES = {"ln2_dewar": (150.0, 5e-4), "lh2_hcyl": (150.0, 5e-4), "lch4_sphere": (600.0, 2e-3)}
+# tests/eng_sim.py (an engineering property model, cryo_sim's command line and mechanism names):
+# its four named tanks and random ones, at the magnitudes the audit resolves on its nulls' scatter.
+ENG_SCENARIOS = ("lh2_upright", "ln2_hcyl", "lch4_sphere", "lh2_small", "random_1", "random_2", "random_3")
+ENG_MAGNITUDES = {"lh2_upright": (300.0, 5e-4), "ln2_hcyl": (600.0, 2e-3), "lch4_sphere": (600.0, 2e-3),
+                  "lh2_small": (150.0, 5e-4), "random_1": (300.0, 5e-4), "random_2": (300.0, 5e-4),
+                  "random_3": (300.0, 5e-4)}
+# Per simulator of that command line: its scenarios, magnitudes and heat-transfer laws in words.
+CLI_SIMS = {"cryo": (CRYO_SCENARIOS, CRYO_MAGNITUDES, "Churchill-Chu"),
+            "eng": (ENG_SCENARIOS, ENG_MAGNITUDES, "Nu = 0.13 Ra^(1/3)")}
 
 
 def nodal_jobs(scenarios, laws) -> list[dict]:
@@ -110,35 +121,38 @@ def generate(job: dict, folder: Path) -> Path:
     return folder / f"{name}.json"
 
 
-def cryo_jobs(scenarios) -> list[dict]:
+def cli_jobs(sim: str) -> list[dict]:
+    """Every hidden mechanism and a null per scenario of ``cryo_sim`` or ``eng_sim`` (``CLI_SIMS``)."""
+    scenarios, magnitudes, law = CLI_SIMS[sim]
     jobs = []
     for sc in scenarios:
-        heat, leak = CRYO_MAGNITUDES[sc]
+        heat, leak = magnitudes[sc]
         values = {"heat_leak_liquid_W": heat, "heat_leak_vapor_W": heat, "heat_leak_wall_W": heat,
                   "vapor_leak_kg_s": leak, "liquid_leak_kg_s": leak, "inflow_meter_bias": 0.15,
                   "pressure_sensor_bias_Pa": 5000.0, "temperature_sensor_bias_K": 0.5, "helium_mol": None,
                   "wall_heat_capacity_error": 0.5}
-        jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": None, "value": 0.0})
+        jobs.append({"sim": sim, "scenario": sc, "law": law, "hidden": None, "value": 0.0})
         for key, value in values.items():
-            jobs.append({"sim": "cryo", "scenario": sc, "law": "Churchill-Chu", "hidden": CRYO_MECHANISMS[key],
+            jobs.append({"sim": sim, "scenario": sc, "law": law, "hidden": CRYO_MECHANISMS[key],
                          "value": value, "key": key})
     return jobs
 
 
-def generate_cryo(job: dict, folder: Path) -> Path:
-    """Write a cryo_sim run; the helium amount is set from the null run's initial ullage (15 % of p)."""
-    name = f"cryo_{job['scenario']}_{job['hidden'] or 'none'}"
+def generate_cli(job: dict, folder: Path) -> Path:
+    """Write a cryo_sim or eng_sim run; the helium amount is set from the null run's initial ullage (15 % of p)."""
+    sim = job["sim"]
+    name = f"{sim}_{job['scenario']}_{job['hidden'] or 'none'}"
     args = []
     if job["hidden"] is not None:
         if job["value"] is None:
-            null = json.loads((folder / f"cryo_{job['scenario']}_none.truth.json").read_text())["initial_true"]
-            meta = json.loads((folder / f"cryo_{job['scenario']}_none.json").read_text())
+            null = json.loads((folder / f"{sim}_{job['scenario']}_none.truth.json").read_text())["initial_true"]
+            meta = json.loads((folder / f"{sim}_{job['scenario']}_none.json").read_text())
             V_v = (1.0 - null["fill_ratio"]) * meta["tank"]["volume_m3"]
             job["value"] = 0.15 * null["p_Pa"] * V_v / (R_J_PER_MOLK * null["T_v_K"])
         args = ["--mechanism", f"{job['key']}={job['value']}"]
     path = folder / f"{name}.json"
     if not path.exists():
-        cmd = [sys.executable, str(ROOT / "tests" / "cryo_sim.py"), job["scenario"], "--noise", "low", "--seed", "0",
+        cmd = [sys.executable, str(ROOT / "tests" / f"{sim}_sim.py"), job["scenario"], "--noise", "low", "--seed", "0",
                "--out", str(folder), "--name", name, *args]
         subprocess.run(cmd, check=True, capture_output=True, text=True)
     truth = json.loads((folder / f"{name}.truth.json").read_text())["initial_true"]
@@ -232,7 +246,7 @@ def write_table(rows: list[dict], out: Path) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="output folder (runs/, table.md, table.json)")
-    ap.add_argument("--only", choices=("nodal", "independent", "cryo"), default=None, help="one simulator only")
+    ap.add_argument("--only", choices=("nodal", "independent", *CLI_SIMS), default=None, help="one simulator only")
     ap.add_argument("--laws", nargs="+", default=list(LAWS), help="nodal_sim laws")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), help="nodal_sim scenarios")
     ap.add_argument("--hidden", nargs="*", default=None, help="only these hidden mechanisms (tankode names; 'none')")
@@ -254,11 +268,13 @@ def main(argv=None) -> int:
                 jobs.append(job)
     if args.only in (None, "independent"):
         jobs += [j for j in independent_runs(runs) if args.hidden is None or (j["hidden"] or "none") in args.hidden]
-    if args.only in (None, "cryo"):
-        for job in cryo_jobs(CRYO_SCENARIOS):
+    for sim in CLI_SIMS:
+        if args.only not in (None, sim):
+            continue
+        for job in cli_jobs(sim):
             wanted = args.hidden is None or (job["hidden"] or "none") in args.hidden
             if wanted or job["hidden"] is None:  # the null is always written: the helium amount is set from it
-                job["path"] = generate_cryo(job, runs)
+                job["path"] = generate_cli(job, runs)
             if wanted:
                 jobs.append(job)
     done = json.loads((out / "table.json").read_text()) if (out / "table.json").exists() else []

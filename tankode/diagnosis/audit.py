@@ -30,7 +30,16 @@ Detection*, 2000). Per run:
    heat proportional to ``dT_w/dt``; prior ``wall_capacity_prior`` relative where the run does
    not state ``C_w``, half that where it does) and an offset of the liquid temperature sensor
    (it shows wherever the liquid mass changes, and in the enthalpy drains are metered at, which
-   is taken at the measured ``T_l``; prior ``liquid_bias_prior_K``). Where a straight
+   is taken at the measured ``T_l``; prior ``liquid_bias_prior_K``), and the property model's
+   uncertainty: data written with another model of the fluid than the reference (an engineering
+   one: an Antoine saturation curve, a liquid density linear in temperature alone, constant
+   heat capacities, a virial vapour, Watson's latent heat) differ from it by a few per cent in
+   each property, which the inventory reads as unmetered mass and heat (a compressibility left
+   out reads as a leak under a pressurisation, a constant heat capacity as heat wherever the
+   liquid warms). Each such difference is a perturbation of the reference equation of state
+   (``_PerturbedThermo``: the liquid's expansion and compressibility, its heat capacity, the
+   vapour's heat capacity, the vapour's energy against the liquid's) applied to the inventory
+   and to every metered flow alike, with a prior in ``AuditConfig``. Where a straight
    line does not fit a phase within the noise (a fast transient, a state the sensors resolve
    badly), that phase's covariance is scaled by its Birge ratio ``sqrt(chi2/dof)``, and the
    joint fit's standard errors by the joint fit's own: model error widens the interval
@@ -38,7 +47,9 @@ Detection*, 2000). Per run:
 5. **Test the sensors' thermodynamic consistency**: a pure ullage cannot stay colder than
    saturation at its pressure, nor a liquid warmer. A violation beyond the noise at
    ``consistency_share`` or more of the audit times is evidence of an inert gas (its partial
-   pressure at least ``p - p_sat(T_v)``) or of a biased pressure or temperature sensor; it is
+   pressure at least ``p - p_sat(T_v)``) or of a biased pressure or temperature sensor, where the
+   ullage reads ``saturation_margin_K`` or more below saturation (another model of the fluid
+   places saturation up to about 1 K from the reference's); it is
    reported, never a reason to stop. Shorter violations (a sloshing transient) are listed. The
    other way round, a liquid whose median reading over the run lies ``consistency_margin_K``
    above saturation at the measured pressure rules an inert gas out (it would lower the
@@ -59,13 +70,16 @@ Detection*, 2000). Per run:
    three standard errors of ``p - p_sat(T_l)``. The vented share is taken on the inventory's
    mass, which counts the helium at the fluid's molar mass: the amount is low by about
    ``1 / (1 + x (M_He / M_f - 1))`` at helium mole fraction ``x``. The best
-   hypothesis is named when its rate is ``z_name`` standard errors from zero, it explains both
+   hypothesis is named when its rate is ``z_name`` standard errors from zero (``z_name_properties``
+   where the property model's uncertainty is allowed for, step 4, and then only if the fit with
+   the reference's properties alone also puts it ``z_name`` out), it explains both
    balances (its chi2 within ``chi2_separation`` of the free mass-and-heat fit) and every other
    hypothesis is worse by ``chi2_separation`` or more. Unmetered heat is named with the three
    places it may enter (the whole-tank balance cannot locate it); hypotheses that cannot be
    told apart are listed together. A wrong wall heat capacity competes as one more hypothesis
    (its correction freed from the prior); a liquid temperature offset ``z_name`` standard errors
-   from zero under the chosen explanation is named as a biased liquid temperature sensor.
+   from zero under the chosen explanation is named as a biased liquid temperature sensor, unless
+   the liquid it implies would sit ``saturation_margin_K`` or more above saturation (median).
 
 Without a level sensor the mass balance is not observable: the liquid volume is then taken from
 the metered mass (no leak assumed) and only the energy balance is audited. Without a wall
@@ -84,6 +98,7 @@ where unmetered heat enters: wall, liquid or ullage.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -108,6 +123,13 @@ M_INERT_KG_PER_MOL = 4.002602e-3
 HEAT_CANDIDATES = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
 
+# The equation of state's perturbations the audit carries as nuisances, and their priors' fields.
+PROPERTY_PRIORS = {"rho_l": "liquid_density_prior", "rho_l_T": "liquid_expansion_prior",
+                    "rho_l_p": "liquid_compressibility_prior",
+                    "c_l": "liquid_heat_capacity_prior", "rho_v": "vapor_density_prior",
+                    "c_v": "vapor_heat_capacity_prior", "latent": "latent_heat_prior"}
+
+
 @dataclass(frozen=True)
 class AuditConfig:
     """How the inventory audit smooths, tests and names (module docstring)."""
@@ -119,6 +141,12 @@ class AuditConfig:
     min_phase_s: float = 240.0
     # A rate is named when it is this many standard errors from zero (gross-error test).
     z_name: float = 5.0
+    # Where the property model's uncertainty is allowed for (the property priors below), the
+    # audit names at this many standard errors, and only what also stands z_name out with the
+    # reference's properties: a rate another model of the fluid explains is not named, while
+    # data written with the reference's properties keep most of what z_name alone names (the
+    # nuisances widen every interval; experiments/README.md, section 6).
+    z_name_properties: float = 4.0
     # Hypotheses are told apart when the others' chi2 is this much larger (3 sigma for one parameter).
     chi2_separation: float = 9.0
     # Relative prior standard deviation of a wall heat capacity the run does not state.
@@ -126,19 +154,55 @@ class AuditConfig:
     # K; prior standard deviation of the liquid temperature sensor's offset (a weak prior: it
     # only keeps the offset defined where the liquid mass never changes).
     liquid_bias_prior_K: float = 2.0
+    # Property-model uncertainty (step 4): prior standard deviations of perturbations of the
+    # reference equation of state, for data written with another model of the fluid (an
+    # engineering one: saturation within about 1 K, liquid density within about 1 %, a constant
+    # liquid heat capacity, a virial vapour, Watson's latent heat); 0 trusts that property.
+    # Relative liquid density. 0: a constant scale error changes the inventory only with the
+    # liquid's mass, like a meter bias on every fill and a leak in every boil-off, and none of
+    # the engineering-property runs measured needed it (experiments/README.md, section 6).
+    liquid_density_prior: float = 0.0
+    # The liquid's thermal expansion about the initial T_l, relative to the reference's (a linear
+    # fit to a curved rho_l(T)).
+    liquid_expansion_prior: float = 0.3
+    # The liquid's compressibility about the initial pressure, relative to the reference's (a
+    # density of temperature alone neglects it: 0.2 % per bar for hydrogen at 21 K).
+    liquid_compressibility_prior: float = 1.0
+    # Relative liquid heat capacity about the initial T_l (a constant c_l fitted over a run's
+    # range: 5-10 % off; hydrogen's varies by a fifth between 20 and 23 K).
+    liquid_heat_capacity_prior: float = 0.10
+    # Relative vapour density (ideal or second-virial vapour near saturation: 3-7 % off). 0, as
+    # the liquid density's scale, for the same reason.
+    vapor_density_prior: float = 0.0
+    # Relative vapour heat capacity about the initial T_v (a constant c_v: 10-15 % off).
+    vapor_heat_capacity_prior: float = 0.10
+    # The vapour's energy against the liquid's, in units of the latent heat at the initial
+    # pressure (Watson's relation or a constant latent heat: a few % off).
+    latent_heat_prior: float = 0.05
     # Relative weight of the curvature penalty (per knot, in units of the channel's noise).
     smoothing: float = 1e-3
     # Share of the audit times at which a saturation violation must hold to be evidence.
     consistency_share: float = 0.5
-    # K; a saturation violation must exceed this as well as three standard errors.
+    # K; a liquid reading warmer than saturation must exceed this as well as three standard
+    # errors (it only rules an inert gas out, step 5).
     consistency_margin_K: float = 0.05
+    # K; how far from the reference's saturation data written with another model of the fluid may
+    # place it (about 1 K for an engineering model): an ullage reading colder than saturation by
+    # more (and by three standard errors) is evidence of an inert gas or a biased sensor, and a
+    # liquid thermometer offset is not named where the liquid it implies would sit more than
+    # this above saturation (no pure liquid stays there).
+    saturation_margin_K: float = 1.0
 
     def __post_init__(self):
-        for name in ("knot_s", "min_phase_s", "z_name", "chi2_separation", "wall_capacity_prior", "liquid_bias_prior_K",
-                     "smoothing", "consistency_share", "consistency_margin_K"):
+        for name in ("knot_s", "min_phase_s", "z_name", "z_name_properties", "chi2_separation", "wall_capacity_prior",
+                     "liquid_bias_prior_K", "smoothing", "consistency_share", "consistency_margin_K", "saturation_margin_K"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"AuditConfig.{name} must be finite and > 0, got {v}")
+        for name in PROPERTY_PRIORS.values():
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"AuditConfig.{name} must be finite and >= 0, got {v}")
         if self.consistency_share > 1:
             raise ValueError(f"AuditConfig.consistency_share must be in (0, 1], got {self.consistency_share}")
 
@@ -248,6 +312,9 @@ class RunAudit:
             hydrogen's partial pressure and with it the liquid surface's temperature).
         inert_gas_excluded: why the readings rule an inert gas out ("" where they do not).
         findings: what is named (step 6).
+        withheld: sentences of what step 6 does not name because only one of its two explanations
+            (with the reference's properties, and with another model of the fluid allowed for)
+            would.
         series: ``t_s`` and the measured and metered mass (kg) and energy (J) with the measured
             ones' standard errors, for the figure.
     """
@@ -266,6 +333,7 @@ class RunAudit:
     liquid_superheat_K: float
     inert_gas_excluded: str
     findings: tuple[InventoryFinding, ...]
+    withheld: tuple[str, ...]
     series: dict = field(repr=False)
 
     def finding(self, name: str) -> InventoryFinding | None:
@@ -288,7 +356,7 @@ class RunAudit:
             "chi2_between_phases": self.chi2_between_phases, "consistency": list(self.consistency),
             "inert_partial_pressure_Pa": self.inert_partial_pressure_Pa, "liquid_superheat_K": self.liquid_superheat_K,
             "inert_gas_excluded": self.inert_gas_excluded,
-            "findings": [f.to_json() for f in self.findings],
+            "findings": [f.to_json() for f in self.findings], "withheld": list(self.withheld),
         }
 
 
@@ -391,6 +459,73 @@ class _Thermo:
         return self.liquid(p, T)[2]
 
 
+class _PerturbedThermo:
+    """The reference states with one property perturbed by ``step`` (a ``PROPERTY_PRIORS`` key).
+
+    ``rho_l``: rho_l (1 + step); ``rho_l_T``: rho_l (1 - step beta0 (T - T_l0)); ``rho_l_p``:
+    rho_l (1 + step kappa0 (p - p0)); ``c_l``: u_l + step c_l0 (T - T_l0); ``rho_v``: rho_v (1 +
+    step); ``c_v``: u_v + step c_v0 (T - T_v0); ``latent``: u_v + step L0 (``_PropertyRef``).
+    Enthalpies follow as ``u + p / rho``, so the inventory and every metered flow see the same
+    equation of state.
+    """
+
+    def __init__(self, base: _Thermo, name: str, step: float, ref: "_PropertyRef"):
+        self.base, self.name, self.step, self.ref = base, name, step, ref
+        self.molar_mass_kg_per_mol = base.molar_mass_kg_per_mol
+
+    def vapor(self, p: float, T: float) -> tuple[float, float, float]:
+        rho, u, _ = self.base.vapor(p, T)
+        if self.name == "rho_v":
+            rho *= 1 + self.step
+        elif self.name == "c_v":
+            u += self.step * self.ref.c_v0 * (T - self.ref.T_v0)
+        elif self.name == "latent":
+            u += self.step * self.ref.L0
+        return rho, u, u + p / rho
+
+    def liquid(self, p: float, T: float) -> tuple[float, float, float]:
+        rho, u, _ = self.base.liquid(p, T)
+        if self.name == "rho_l":
+            rho *= 1 + self.step
+        elif self.name == "rho_l_T":
+            rho *= 1 - self.step * self.ref.beta0 * (T - self.ref.T_l0)
+        elif self.name == "rho_l_p":
+            rho *= 1 + self.step * self.ref.kappa0 * (p - self.ref.p0)
+        elif self.name == "c_l":
+            u += self.step * self.ref.c_l0 * (T - self.ref.T_l0)
+        return rho, u, u + p / rho
+
+    def vapor_enthalpy(self, p: float, T: float) -> float:
+        return self.vapor(p, T)[2]
+
+    def liquid_enthalpy(self, p: float, T: float) -> float:
+        return self.liquid(p, T)[2]
+
+
+class _PropertyRef(NamedTuple):
+    """Where the property perturbations are anchored: the run's initial state."""
+
+    p0: float  # Pa
+    T_l0: float  # K
+    T_v0: float  # K
+    beta0: float  # 1/K, the liquid's -(1/rho) drho/dT there
+    kappa0: float  # 1/Pa, the liquid's (1/rho) drho/dp there
+    c_l0: float  # J/(kg K), du_l/dT there
+    c_v0: float  # J/(kg K), du_v/dT there
+    L0: float  # J/kg, h_v,sat - h_l,sat at the initial pressure
+
+    @classmethod
+    def at(cls, thermo: _Thermo, p: float, T_l: float, T_v: float) -> "_PropertyRef":
+        dT, dp = 0.01, 100.0
+        (rl, ul, _), (rl_T, ul_T, _) = thermo.liquid(p, T_l - dT), thermo.liquid(p, T_l + dT)
+        rho, beta = 0.5 * (rl + rl_T), -(rl_T - rl) / (rl + rl_T) / dT
+        kappa = (thermo.liquid(p + dp, T_l)[0] - thermo.liquid(p - dp, T_l)[0]) / (2 * dp * rho)
+        c_v = (thermo.vapor(p, T_v + dT)[1] - thermo.vapor(p, T_v - dT)[1]) / (2 * dT)
+        T_sat = thermo.T_sat(p)
+        L0 = thermo.vapor(p, T_sat + 1e-3)[2] - thermo.liquid(p, T_sat - 1e-3)[2]
+        return cls(p, T_l, T_v, beta, kappa, (ul_T - ul) / (2 * dT), c_v, L0)
+
+
 def _inventory(thermo: _Thermo, V_tank: float, x: np.ndarray, V_l: float, C_w: float, wall_T: float):
     """(M, E, h_v, h_l, m_v) at channel values ``x`` (p, T_v, T_l, T_w, H_l) with liquid volume ``V_l``."""
     p, T_v, T_l = x[0], x[1], x[2]
@@ -442,6 +577,7 @@ class _PhaseData:
     J_Tl: np.ndarray  # d[M; E / H_REF] / dT_l at the knots (a liquid sensor offset's signature)
     wall: np.ndarray  # -C_w T_w / H_REF at the knots (a wall capacity correction's signature), 0 without T_w
     cols: dict  # hypothesis signatures [M; E / H_REF] at the knots
+    props: dict  # property perturbations' signatures [M; E / H_REF] at the knots, per unit perturbation
 
 
 def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: np.ndarray, hl_k: np.ndarray,
@@ -490,9 +626,11 @@ def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: n
 
 
 def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank: float, C_w: float,
-                 has_level: bool, has_wall: bool, M_start: float | None, vented: float, config: AuditConfig):
+                 has_level: bool, has_wall: bool, M_start: float | None, vented: float, config: AuditConfig,
+                 perturbed: tuple = ()):
     """One phase: (PhaseAudit, _PhaseData, figure rows, consistency rows, the last knot's M, the
-    share of the ullage vented by its end), or None; ``vented``: that share at its start."""
+    share of the ullage vented by its end), or None; ``vented``: that share at its start;
+    ``perturbed``: ``_PerturbedThermo`` states whose residuals give the property nuisances."""
     obs = run.observations
     spacing = config.knot_s
     for c in ("p_v_Pa", "T_v_K", "T_l_K") + (("H_l_m",) if has_level else ()) + (("T_w_K",) if has_wall else ()):
@@ -558,6 +696,14 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     # metered energy (linear in hl, so one unit offset of hl by dh_l/dT_l gives it exactly).
     J_Tl_E = Je[:, 2] - (_metered(thermo, sched, knots, vals[:, 0], hvs, hls + dhl)["E"] - met["E"])
     rM, rE = Ms - Ms[0] - met["M"], Es - Es[0] - met["E"]
+    # The property nuisances: the same residual under each perturbed equation of state.
+    props = {}
+    for th in perturbed:
+        inv = np.array([_inventory(th, V_tank, vals[k], V_l[k], C_w, vals[k, 3] if wall_ok else vals[k, 2])
+                        for k in range(n)])
+        met_p = _metered(th, sched, knots, vals[:, 0], inv[:, 2], inv[:, 3])
+        props[th.name] = ((inv[:, 0] - inv[0, 0] - met_p["M"] - rM) / th.step,
+                          (inv[:, 1] - inv[0, 1] - met_p["E"] - rE) / th.step / _H_REF)
     # Covariances of (M, E) from the channels' (independent) fit covariances.
     CM = sum(np.outer(Jm[:, j], Jm[:, j]) * covs[j] for j in range(5))
     CE = sum(np.outer(Je[:, j], Je[:, j]) * covs[j] for j in range(5))
@@ -591,9 +737,11 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     if level_ok:
         C = np.block([[CM * birge_m**2, CME * birge_m * E_scale], [CME.T * birge_m * E_scale, CE * E_scale**2]])
         data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], J_Tl_E / _H_REF]),
-                          np.concatenate([zeros, wall]), {k: np.concatenate(v) for k, v in sig.items()})
+                          np.concatenate([zeros, wall]), {k: np.concatenate(v) for k, v in sig.items()},
+                          {k: np.concatenate(v) for k, v in props.items()})
     else:
-        data = _PhaseData(tt, None, rE, CE * E_scale**2, J_Tl_E / _H_REF, wall, {k: v[1] for k, v in sig.items()})
+        data = _PhaseData(tt, None, rE, CE * E_scale**2, J_Tl_E / _H_REF, wall, {k: v[1] for k, v in sig.items()},
+                          {k: v[1] for k, v in props.items()})
     fig = {"t_s": knots, "M": Ms, "M_std": np.sqrt(np.clip(np.diag(CM), 0, None)) if level_ok else np.full(n, np.nan),
            "E": Es, "E_std": np.sqrt(np.clip(np.diag(CE), 0, None)), "metered_M": met["M"], "metered_E": met["E"],
            "level_ok": level_ok}
@@ -605,7 +753,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         dTdp = (thermo.T_sat(p + 100.0) - thermo.T_sat(p - 100.0)) / 200.0
         sv = math.sqrt(covs[1][k, k] + covs[0][k, k] * dTdp**2)
         sl = math.sqrt(covs[2][k, k] + covs[0][k, k] * dTdp**2)
-        cons.append((knots[k], p, T_v, T_l, T_sat, T_v < T_sat - max(3 * sv, config.consistency_margin_K),
+        cons.append((knots[k], p, T_v, T_l, T_sat, T_v < T_sat - max(3 * sv, config.saturation_margin_K),
                      T_l > T_sat + max(3 * sl, config.consistency_margin_K)))
     return phase, data, fig, cons, (Ms[-1] if not level_ok else None), met["vented"]
 
@@ -641,11 +789,16 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     has_level = "H_l_m" in run.observations.measured_channels
     has_wall = "T_w_K" in run.observations.measured_channels
     thermo = _Thermo(run.fluid)
+    ini = run.initial
+    ref = _PropertyRef.at(thermo, ini.p_v_Pa, ini.T_l_K, ini.T_v_K)
+    perturbed = tuple(_PerturbedThermo(thermo, name, getattr(config, attr), ref)
+                      for name, attr in PROPERTY_PRIORS.items() if getattr(config, attr) > 0)
 
     phases, datas, figs, cons = [], [], [], []
     M_end, vented = None, 0.0
     for a, b in _phases(run, config.min_phase_s):
-        got = _audit_phase(run, a, b, thermo, geometry, V_tank, C_w, has_level, has_wall, M_end, vented, config)
+        got = _audit_phase(run, a, b, thermo, geometry, V_tank, C_w, has_level, has_wall, M_end, vented, config,
+                           perturbed)
         if got is None:
             continue
         phase, data, fig, c, M_end, vented = got
@@ -655,17 +808,99 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     mass_level = all(d.rM is not None for d in datas)
     if not mass_level:  # a phase without level samples: audit the energy alone everywhere
         datas = [_energy_only(d) for d in datas]
-    fit = _RunFit(datas, has_wall, wall_capacity_assumed, config)
-    general = fit.solve(["mass", "heat"] if mass_level else ["heat"])
-    B = general.birge
-    mass = Estimate(*general.rate("mass")) if mass_level else None
-    heat = Estimate(*general.rate("heat"))
     consistency, inert = _consistency(thermo, cons, config)
     superheat = float(np.median([r[3] - r[4] for r in cons]))
     excluded = ""
     if superheat > config.consistency_margin_K:
         excluded = (f"the liquid reads a median {superheat:.2f} K warmer than saturation at the measured pressure; an "
                     "inert gas would hold it below (it lowers the hydrogen's partial pressure)")
+    # Two explanations: with the reference's properties (strict) and with the property model's
+    # uncertainty allowed (robust, where any property prior is on). The robust one reports and
+    # names, at z_name_properties; what it names must also stand z_name out in the strict one.
+    strict = _explain(_RunFit(datas, has_wall, wall_capacity_assumed, config, properties=False), mass_level, excluded)
+    fit = _RunFit(datas, has_wall, wall_capacity_assumed, config, properties=True)
+    robust = fit.has_properties
+    general, sols, hyps = _explain(fit, mass_level, excluded) if robust else strict
+    B = general.birge
+    mass = Estimate(*general.rate("mass")) if mass_level else None
+    heat = Estimate(*general.rate("heat"))
+    per = [p.heat_W for p in phases]
+    w = np.array([1 / e.std**2 for e in per])
+    v = np.array([e.value for e in per])
+    chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
+    ullage = _Ullage(ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
+    naming = dataclasses.replace(config, z_name=config.z_name_properties) if robust else config
+    findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, naming, mass_level, ullage)
+    # The nuisances as the explanation the findings rest on estimates them.
+    s = sols[chosen] if chosen in sols else general
+    cw = Estimate(1.0 + s.value("wall"), s.std("wall", B)) if fit.use_wall else None
+    offset = Estimate(s.value("T_l"), s.std("T_l", B))
+    z_strict = _strict_z(strict, chosen)
+    findings[:0] = _thermometer(offset, superheat, config)
+    kept, withheld = [], []
+    for f in findings:
+        z = z_strict(f.name)
+        if z is None or abs(z) >= config.z_name:
+            kept.append(f)
+        else:
+            withheld.append(f"{f.name} ({f.estimate}) stands {abs(f.estimate.z):.1f} standard errors out where "
+                            f"another model of the fluid is allowed for, but {abs(z):.1f} with the reference's "
+                            f"properties ({config.z_name:g} needed): not named")
+    if robust:  # and what the reference's properties alone would name, but another model explains
+        general_s, sols_s, hyps_s = strict
+        B_s = general_s.birge
+        mass_s = Estimate(*general_s.rate("mass")) if mass_level else None
+        named = {f.name for f in findings}
+        found, chosen_s = _name(mass_s, Estimate(*general_s.rate("heat")), hyps_s, general_s.chi2 / B_s**2, inert,
+                                consistency, config, mass_level, ullage)
+        s_s = sols_s[chosen_s] if chosen_s in sols_s else general_s
+        for f in _thermometer(Estimate(s_s.value("T_l"), s_s.std("T_l", B_s)), superheat, config) + found:
+            if f.name not in named:
+                withheld.append(f"{f.name} ({f.estimate}) stands {abs(f.estimate.z):.1f} standard errors out with the "
+                                "reference's properties, but another model of the fluid explains it (AuditConfig's "
+                                "property priors): not named")
+    series = _series(figs)
+    return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
+                    tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(kept), tuple(withheld), series)
+
+
+def _thermometer(offset: Estimate, superheat: float, config: AuditConfig) -> list[InventoryFinding]:
+    """The liquid thermometer's bias as a finding, where its offset stands ``z_name`` out and the liquid
+    it implies does not sit ``saturation_margin_K`` above saturation (median ``superheat`` read)."""
+    if abs(offset.z) < config.z_name or superheat - offset.value > config.saturation_margin_K:
+        return []
+    return [InventoryFinding(
+        "temperature_sensor_bias", offset, "K", ("temperature_sensor_bias",),
+        f"the liquid temperature reads {offset.value:+.3g} +- {offset.std:.2g} K off the temperature the liquid's "
+        "mass and energy changes need: a biased liquid temperature sensor (or one sitting in a layer warmer or "
+        "colder than the bulk)")]
+
+
+def _strict_z(strict, chosen: str):
+    """``name -> z`` of a finding in the strict explanation (None for what the balances do not rate)."""
+    general, sols, hyps = strict
+    B = general.birge
+    s = sols[chosen] if chosen in sols else general
+
+    def z(name: str) -> float | None:
+        if name == "unmetered_mass":
+            value, std = general.rate("mass", B)
+        elif name == "unmetered_heat":
+            return hyps["heat"].z
+        elif name == "temperature_sensor_bias":
+            value, std = s.value("T_l"), s.std("T_l", B)
+        elif name in hyps:
+            return hyps[name].z
+        else:
+            return None
+        return value / std if std > 0 else 0.0
+    return z
+
+
+def _explain(fit: "_RunFit", mass_level: bool, excluded: str):
+    """The free fit (unmetered mass and heat), and each single-cause hypothesis's fit and summary."""
+    general = fit.solve(["mass", "heat"] if mass_level else ["heat"])
+    B = general.birge
     sols, hyps = {}, {}
     for name in HYPOTHESES:
         if name == "inflow_meter_bias" and not fit.has_inflow:
@@ -681,33 +916,15 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
         value, std = s.rate(name, B)
         shown = 1.0 + value if name == "wall_heat_capacity_error" else value
         hyps[name] = Hypothesis(name, s.chi2 / B**2, Estimate(shown, std), value / std if std > 0 else 0.0)
-    per = [p.heat_W for p in phases]
-    w = np.array([1 / e.std**2 for e in per])
-    v = np.array([e.value for e in per])
-    chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
-    ini = run.initial
-    ullage = _Ullage(ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
-    findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, config, mass_level, ullage)
-    # The nuisances as the explanation the findings rest on estimates them.
-    s = sols[chosen] if chosen in sols else general
-    cw = Estimate(1.0 + s.value("wall"), s.std("wall", B)) if fit.use_wall else None
-    offset = Estimate(s.value("T_l"), s.std("T_l", B))
-    if abs(offset.z) >= config.z_name:
-        findings.insert(0, InventoryFinding(
-            "temperature_sensor_bias", offset, "K", ("temperature_sensor_bias",),
-            f"the liquid temperature reads {offset.value:+.3g} +- {offset.std:.2g} K off the temperature the liquid's "
-            "mass and energy changes need: a biased liquid temperature sensor (or one sitting in a layer warmer or "
-            "colder than the bulk)"))
-    series = _series(figs)
-    return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
-                    tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(findings), series)
+    return general, sols, hyps
 
 
 def _energy_only(d: _PhaseData) -> _PhaseData:
     if d.rM is None:
         return d
     n = len(d.tt)
-    return _PhaseData(d.tt, None, d.rE, d.C[n:, n:], d.J_Tl[n:], d.wall[n:], {k: v[n:] for k, v in d.cols.items()})
+    return _PhaseData(d.tt, None, d.rE, d.C[n:, n:], d.J_Tl[n:], d.wall[n:], {k: v[n:] for k, v in d.cols.items()},
+                      {k: v[n:] for k, v in d.props.items()})
 
 
 class _Solution:
@@ -729,7 +946,8 @@ class _Solution:
 class _RunFit:
     """The joint GLS of every phase's residuals (module docstring, step 4) with chosen rate columns."""
 
-    def __init__(self, datas: list[_PhaseData], has_wall: bool, assumed: bool, config: AuditConfig):
+    def __init__(self, datas: list[_PhaseData], has_wall: bool, assumed: bool, config: AuditConfig,
+                 properties: bool = False):
         self.datas = datas
         self.use_wall = has_wall and any(np.ptp(d.wall) > 0 for d in datas)
         self.has_inflow = any(np.ptp(d.cols["inflow_meter_bias"]) > 0 for d in datas)
@@ -755,6 +973,12 @@ class _RunFit:
         self.base = cols
         self.nuisance = {"T_l": np.concatenate([d.J_Tl for d in datas])}
         self.prior = {"T_l": config.liquid_bias_prior_K}
+        self.has_properties = False
+        for name, attr in PROPERTY_PRIORS.items():
+            if properties and getattr(config, attr) > 0:
+                self.nuisance[name] = np.concatenate([d.props[name] for d in datas])
+                self.prior[name] = getattr(config, attr)
+                self.has_properties = True
         if self.use_wall:
             self.nuisance["wall"] = np.concatenate([d.wall for d in datas])
             self.prior["wall"] = config.wall_capacity_prior if assumed else 0.5 * config.wall_capacity_prior

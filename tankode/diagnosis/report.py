@@ -206,6 +206,8 @@ def audit_markdown(d: Diagnosis) -> list[str]:
         L.append("Findings: " + ("; ".join(named) if named else "nothing unmetered beyond the noise") + ".")
         if a.consistency:
             L.append("Saturation consistency: " + "; ".join(a.consistency) + ".")
+        if a.withheld:
+            L.append("Withheld: " + "; ".join(a.withheld) + ".")
         L += ["", "| single cause | estimate | chi2 |", "|---|---|---|"]
         units = {"heat": "W", "vapor_leak": "g/s lost", "liquid_leak": "g/s lost", "inflow_meter_bias": "relative",
                  "wall_heat_capacity_error": "x stated C_w", "noncondensable_gas": "mol of inert gas"}
