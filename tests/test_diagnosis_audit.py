@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from tankode import get_case, simulate
-from tankode.diagnosis.audit import (PROPERTY_PRIORS, AuditConfig, Estimate, Hypothesis, _metered, _name, _phases,
-                                     _smooth, audit_run)
+from tankode.diagnosis.audit import (AuditConfig, Estimate, Hypothesis, _metered, _name, _phases, _smooth,
+                                     audit_run)
 from tankode.diagnosis.diagnose import Candidate, Thresholds
 from tankode.diagnosis.verdict import Inventory, audit_consistency, decide
 from tankode.mechanisms import make_mechanism
@@ -92,7 +92,7 @@ def test_tankode_own_heat_leak_and_wall_capacity_are_measured_in_closed_form():
     1.5 times the stated one, and a 0.5 g/s vapour leak. Its runs are written with the reference's
     properties (the surrogate is fitted to them), so the closed form is checked without the
     property model's uncertainty the audit allows by default."""
-    config = AuditConfig(**{field: 0.0 for field in PROPERTY_PRIORS.values()})
+    config = AuditConfig().trusting_properties()
     heat = audit_run(_case("case3", [make_mechanism("heat_leak_wall", Q_W=500.0),
                                      make_mechanism("wall_heat_capacity_error", eps=0.5)]), config)
     named = heat.finding("unmetered_heat")

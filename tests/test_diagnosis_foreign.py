@@ -23,7 +23,7 @@ import nodal_sim
 from verdict_checks import assert_right_or_silent
 from tankode import read_run
 from tankode.diagnosis import diagnose, write_report
-from tankode.diagnosis.audit import PROPERTY_PRIORS, AuditConfig, audit_run
+from tankode.diagnosis.audit import AuditConfig, audit_run
 
 HEAT = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
@@ -131,7 +131,7 @@ def test_the_vents_measure_an_inert_gas_by_the_mass_they_meter_beyond_the_invent
     # The signature itself, with the run's own (reference) properties: the property model's
     # uncertainty the audit allows by default (a vapour heat capacity, a latent heat a few % off)
     # halves these estimates' z.
-    reference = AuditConfig(**{field: 0.0 for field in PROPERTY_PRIORS.values()})
+    reference = AuditConfig().trusting_properties()
     null = audit_run(nodal("tank_4p9m3", "mcadams"), reference).hypotheses["noncondensable_gas"]
     assert abs(null.z) < 2, null
     for n_mol in (200.0, 600.0):
@@ -189,7 +189,7 @@ def test_the_audit_reads_a_fifth_simulators_engineering_properties(tmp_path, sce
     run = read_run(paths["json"])
     _assert_audit_finds(run, finding, value)
     if finding is None:
-        trusting = AuditConfig(**{field: 0.0 for field in PROPERTY_PRIORS.values()})
+        trusting = AuditConfig().trusting_properties()
         assert audit_run(run, trusting).findings != ()  # the property nuisances are what keeps it silent
         withheld = audit_run(run).withheld
         assert withheld and all(s.endswith("not named") for s in withheld), withheld

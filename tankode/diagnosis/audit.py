@@ -206,6 +206,11 @@ class AuditConfig:
         if self.consistency_share > 1:
             raise ValueError(f"AuditConfig.consistency_share must be in (0, 1], got {self.consistency_share}")
 
+    def trusting_properties(self) -> "AuditConfig":
+        """This configuration with every property prior 0: for data written with the reference's
+        properties (tankode's own runs; its surrogate is fitted to CoolProp)."""
+        return dataclasses.replace(self, **{attr: 0.0 for attr in PROPERTY_PRIORS.values()})
+
 
 @dataclass(frozen=True)
 class Estimate:
