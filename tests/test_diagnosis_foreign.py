@@ -57,9 +57,6 @@ NAMED = [
     ("tank_4p9m3", "paper_printed", "vapor_leak_kg_s", 5e-4, "vapor_leak", 5e-4),
     ("hcyl_drain_fill", "mcadams", "liquid_leak_kg_s", 5e-4, "liquid_leak", 5e-4),
     ("tank_4p9m3", "mcadams", "inflow_meter_bias", 0.15, "inflow_meter_bias", 0.15),
-    # under McAdams the same wall (1.45 named before) is not told from a liquid heat capacity 10 %
-    # off, which the audit allows for data written with another property model: none named
-    ("sphere_4m3", "paper_printed", "wall_heat_capacity_error", 0.5, "wall_heat_capacity_error", 1.5),
     ("hcyl_drain_fill", "paper_printed", "temperature_sensor_bias_K", 0.5, "temperature_sensor_bias", 0.5),
     # named only since the offset's signature includes the drain metered at the biased T_l
     ("upright_13m3", "mcadams", "temperature_sensor_bias_K", 0.5, "temperature_sensor_bias", 0.5),
@@ -79,6 +76,21 @@ def test_the_audit_names_what_another_simulator_hid_in_the_inventory(nodal, scen
     assert abs(f.estimate.value - truth) < 3 * f.estimate.std + 0.1 * truth  # the interval is honest
     if finding == "unmetered_heat":
         assert f.candidates == HEAT and "cannot tell apart" in f.sentence
+
+
+def test_a_wall_heat_capacity_another_property_model_explains_is_withheld_with_its_estimate(nodal):
+    """A wall 1.5 times the stated one on the pressurised sphere. Its energy follows the pressure, as
+    the liquid's does at constant temperature in CoolProp (-0.5 kJ/kg per bar) and not in a model
+    whose liquid energy depends on temperature alone: the audit that trusts the reference names the
+    wall; the one that allows for another property model cannot tell the two apart, and reports the
+    estimate as withheld instead of naming it."""
+    run = nodal("sphere_4m3", "paper_printed", "wall_heat_capacity_error", 0.5)
+    trusting = audit_run(run, AuditConfig().trusting_properties())
+    assert [f.name for f in trusting.findings] == ["wall_heat_capacity_error"], trusting.summary()
+    assert trusting.findings[0].estimate.value == pytest.approx(1.5, rel=0.25)
+    a = audit_run(run)
+    assert a.findings == (), a.summary()
+    assert any(w.startswith("wall_heat_capacity_error (1.") and w.endswith("not named") for w in a.withheld), a.withheld
 
 
 @pytest.mark.parametrize("scenario,law,mechanism,value", [
@@ -173,6 +185,9 @@ def test_the_audit_reads_other_fluids_from_a_third_simulator(tmp_path, scenario,
     ("random_2", None, 0.0, None),  # without the property nuisances: an inflow bias of 1.7 %
     ("random_3", None, 0.0, None),  # 0.35 g/s of unmetered mass: the liquid's compressibility
     ("random_8", None, 0.0, None),  # a liquid thermometer bias of -0.50 K
+    # a thermometer bias of -1.0 K: the liquid's energy of temperature alone, which CoolProp's
+    # lowers by 150 J/kg per bar at constant temperature, under fills from 4.9 to 8.2 bar
+    ("random_7", None, 0.0, None),
     ("lh2_upright", "vapor_leak_kg_s", 5e-4, "vapor_leak"),
     ("lh2_upright", "liquid_leak_kg_s", 5e-4, "liquid_leak"),
     ("random_3", "inflow_meter_bias", 0.15, "inflow_meter_bias"),

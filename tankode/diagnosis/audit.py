@@ -37,8 +37,10 @@ Detection*, 2000). Per run:
    each property, which the inventory reads as unmetered mass and heat (a compressibility left
    out reads as a leak under a pressurisation, a constant heat capacity as heat wherever the
    liquid warms). Each such difference is a perturbation of the reference equation of state
-   (``_PerturbedThermo``: the liquid's expansion and compressibility, its heat capacity, the
-   vapour's heat capacity, the vapour's energy against the liquid's) applied to the inventory
+   (``_PerturbedThermo``: the liquid's expansion and compressibility, its heat capacity, its
+   energy's pressure dependence (an energy of temperature alone reads as heat leaving under a
+   pressurisation and entering under a vent), the vapour's heat capacity, the vapour's energy
+   against the liquid's) applied to the inventory
    and to every metered flow alike, with a prior in ``AuditConfig``. Where a straight
    line does not fit a phase within the noise (a fast transient, a state the sensors resolve
    badly), that phase's covariance is scaled by its Birge ratio ``sqrt(chi2/dof)``, and the
@@ -125,7 +127,7 @@ HEAT_CANDIDATES = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
 # The equation of state's perturbations the audit carries as nuisances, and their priors' fields.
 PROPERTY_PRIORS = {"rho_l": "liquid_density_prior", "rho_l_T": "liquid_expansion_prior",
-                    "rho_l_p": "liquid_compressibility_prior",
+                    "rho_l_p": "liquid_compressibility_prior", "u_l_p": "liquid_energy_pressure_prior",
                     "c_l": "liquid_heat_capacity_prior", "rho_v": "vapor_density_prior",
                     "c_v": "vapor_heat_capacity_prior", "latent": "latent_heat_prior"}
 
@@ -168,6 +170,10 @@ class AuditConfig:
     # The liquid's compressibility about the initial pressure, relative to the reference's (a
     # density of temperature alone neglects it: 0.2 % per bar for hydrogen at 21 K).
     liquid_compressibility_prior: float = 1.0
+    # The liquid's energy's pressure dependence at constant temperature, (du/dp)_T = -v (T beta -
+    # p kappa), relative to the reference's (an energy of temperature alone, c_l (T - T_0),
+    # neglects it: -150 J/kg per bar for methane at 134 K, -0.6 kJ/kg per bar for hydrogen at 21 K).
+    liquid_energy_pressure_prior: float = 1.0
     # Relative liquid heat capacity about the initial T_l (a constant c_l fitted over a run's
     # range: 5-10 % off; hydrogen's varies by a fifth between 20 and 23 K).
     liquid_heat_capacity_prior: float = 0.10
@@ -468,7 +474,8 @@ class _PerturbedThermo:
     """The reference states with one property perturbed by ``step`` (a ``PROPERTY_PRIORS`` key).
 
     ``rho_l``: rho_l (1 + step); ``rho_l_T``: rho_l (1 - step beta0 (T - T_l0)); ``rho_l_p``:
-    rho_l (1 + step kappa0 (p - p0)); ``c_l``: u_l + step c_l0 (T - T_l0); ``rho_v``: rho_v (1 +
+    rho_l (1 + step kappa0 (p - p0)); ``c_l``: u_l + step c_l0 (T - T_l0); ``u_l_p``: u_l + step
+    dudp0 (p - p0); ``rho_v``: rho_v (1 +
     step); ``c_v``: u_v + step c_v0 (T - T_v0); ``latent``: u_v + step L0 (``_PropertyRef``).
     Enthalpies follow as ``u + p / rho``, so the inventory and every metered flow see the same
     equation of state.
@@ -498,6 +505,8 @@ class _PerturbedThermo:
             rho *= 1 + self.step * self.ref.kappa0 * (p - self.ref.p0)
         elif self.name == "c_l":
             u += self.step * self.ref.c_l0 * (T - self.ref.T_l0)
+        elif self.name == "u_l_p":
+            u += self.step * self.ref.dudp0 * (p - self.ref.p0)
         return rho, u, u + p / rho
 
     def vapor_enthalpy(self, p: float, T: float) -> float:
@@ -516,6 +525,7 @@ class _PropertyRef(NamedTuple):
     beta0: float  # 1/K, the liquid's -(1/rho) drho/dT there
     kappa0: float  # 1/Pa, the liquid's (1/rho) drho/dp there
     c_l0: float  # J/(kg K), du_l/dT there
+    dudp0: float  # J/(kg Pa), the liquid's (du/dp)_T there
     c_v0: float  # J/(kg K), du_v/dT there
     L0: float  # J/kg, h_v,sat - h_l,sat at the initial pressure
 
@@ -524,11 +534,12 @@ class _PropertyRef(NamedTuple):
         dT, dp = 0.01, 100.0
         (rl, ul, _), (rl_T, ul_T, _) = thermo.liquid(p, T_l - dT), thermo.liquid(p, T_l + dT)
         rho, beta = 0.5 * (rl + rl_T), -(rl_T - rl) / (rl + rl_T) / dT
-        kappa = (thermo.liquid(p + dp, T_l)[0] - thermo.liquid(p - dp, T_l)[0]) / (2 * dp * rho)
+        (rp, up, _), (rm, um, _) = thermo.liquid(p + dp, T_l), thermo.liquid(p - dp, T_l)
+        kappa = (rp - rm) / (2 * dp * rho)
         c_v = (thermo.vapor(p, T_v + dT)[1] - thermo.vapor(p, T_v - dT)[1]) / (2 * dT)
         T_sat = thermo.T_sat(p)
         L0 = thermo.vapor(p, T_sat + 1e-3)[2] - thermo.liquid(p, T_sat - 1e-3)[2]
-        return cls(p, T_l, T_v, beta, kappa, (ul_T - ul) / (2 * dT), c_v, L0)
+        return cls(p, T_l, T_v, beta, kappa, (ul_T - ul) / (2 * dT), (up - um) / (2 * dp), c_v, L0)
 
 
 def _inventory(thermo: _Thermo, V_tank: float, x: np.ndarray, V_l: float, C_w: float, wall_T: float):
