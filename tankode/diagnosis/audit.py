@@ -172,7 +172,8 @@ class AuditConfig:
     liquid_compressibility_prior: float = 1.0
     # The liquid's energy's pressure dependence at constant temperature, (du/dp)_T = -v (T beta -
     # p kappa), relative to the reference's (an energy of temperature alone, c_l (T - T_0),
-    # neglects it: -150 J/kg per bar for methane at 134 K, -0.6 kJ/kg per bar for hydrogen at 21 K).
+    # neglects it: -150 J/kg per bar for methane at 134 K, -520 J/kg per bar for para-hydrogen
+    # at 21 K).
     liquid_energy_pressure_prior: float = 1.0
     # Relative liquid heat capacity about the initial T_l (a constant c_l fitted over a run's
     # range: 5-10 % off; hydrogen's varies by a fifth between 20 and 23 K).
