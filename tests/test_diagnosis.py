@@ -556,6 +556,16 @@ def test_diagnose_writes_report_and_a_model_that_predicts(tmp_path):
     assert {"mechanism", "params", "heldout_gain", "delta_bic"} <= set(first)
     assert report["extended"]["heldout_loss"] < report["baseline"]["heldout_loss"]
     assert "Cause: `vapor_leak`" in paths["md"].read_text()
+    assert "Withheld by the inventory audit" not in paths["md"].read_text()
+    # what the audit withholds is stated under the verdict, not only in the audit's section
+    from dataclasses import replace
+
+    from tankode.diagnosis.report import markdown
+
+    held = "vapor_leak (0.1 +- 0.03) stands 4.2 standard errors out ...: not named"
+    d.audits = tuple(replace(a, withheld=(held,)) for a in d.audits)
+    head = markdown(d, []).split("## Inventory audit")[0]
+    assert "Withheld by the inventory audit" in head and f"{d.audits[0].run}: vapor_leak." in head
     for f in paths["figures"]:
         assert f.stat().st_size > 10_000
     # The saved extended model carries the mechanism: its prediction beats the baseline's.

@@ -292,6 +292,13 @@ class Diagnosis:
         """The mechanism the extended model adds: the cause, or the model's form (``Verdict.kind``)."""
         return self.verdict.named
 
+    @property
+    def withheld(self) -> tuple[str, ...]:
+        """``"run: name, ..."`` per run whose audit withholds findings (``RunAudit.withheld``): named by
+        one of its two explanations, not by both."""
+        return tuple(f"{a.run}: " + ", ".join(w.split(" (", 1)[0] for w in a.withheld)
+                     for a in self.audits if a.withheld)
+
     def extended_model(self):
         """``(closure, mechanisms)`` of the extended model (the baseline's if nothing was named)."""
         f = self.extended_fit if self.extended_fit is not None else self.baseline_fit

@@ -104,6 +104,11 @@ def markdown(d: Diagnosis, figures: list[str]) -> str:
                 "(see each mechanism's signature) would settle it.")
     elif v.kind == "none":
         L.append(f"**No cause**: {v.sentence.removeprefix('no cause: ')}.")
+    if d.withheld:
+        # Near the threshold the property model decides; the user should see that before the details.
+        L.append("Withheld by the inventory audit (named by one of its two explanations, with the reference's "
+                 "properties or with another model of the fluid allowed for, not by both; figures below): "
+                 + "; ".join(d.withheld) + ".")
     if d.named is None and d.unexplained:
         L.append("Channels still beyond the noise on held-out data: " + ", ".join(
             f"{u['run']} {u['channel']} (RMS {u['rms_sigma']:.1f} sigma, bias {u['bias_sigma']:+.1f} sigma)"
