@@ -849,9 +849,8 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     naming = dataclasses.replace(config, z_name=config.z_name_properties) if robust else config
     findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, naming, mass_level, ullage)
     # The nuisances as the explanation the findings rest on estimates them.
-    s = sols[chosen] if chosen in sols else general
+    s, offset = _resting((general, sols, hyps), chosen)
     cw = Estimate(1.0 + s.value("wall"), s.std("wall", B)) if fit.use_wall else None
-    offset = Estimate(s.value("T_l"), s.std("T_l", B))
     z_strict = _strict_z(strict, chosen)
     findings[:0] = _thermometer(offset, superheat, config)
     kept, withheld = [], []
@@ -870,8 +869,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
         named = {f.name for f in findings}
         found, chosen_s = _name(mass_s, Estimate(*general_s.rate("heat")), hyps_s, general_s.chi2 / B_s**2, inert,
                                 consistency, config, mass_level, ullage)
-        s_s = sols_s[chosen_s] if chosen_s in sols_s else general_s
-        for f in _thermometer(Estimate(s_s.value("T_l"), s_s.std("T_l", B_s)), superheat, config) + found:
+        for f in _thermometer(_resting(strict, chosen_s)[1], superheat, config) + found:
             if f.name not in named:
                 withheld.append(f"{f.name} ({f.estimate}) stands {abs(f.estimate.z):.1f} standard errors out with the "
                                 "reference's properties, but another model of the fluid explains it (AuditConfig's "
@@ -893,24 +891,28 @@ def _thermometer(offset: Estimate, superheat: float, config: AuditConfig) -> lis
         "colder than the bulk)")]
 
 
+def _resting(explanation, chosen: str) -> tuple["_Solution", Estimate]:
+    """The fit the findings rest on (``chosen``'s hypothesis, or the free fit where none is chosen)
+    and the liquid temperature offset it estimates; ``explanation`` is ``_explain``'s."""
+    general, sols, _ = explanation
+    s = sols[chosen] if chosen in sols else general
+    return s, Estimate(s.value("T_l"), s.std("T_l", general.birge))
+
+
 def _strict_z(strict, chosen: str):
     """``name -> z`` of a finding in the strict explanation (None for what the balances do not rate)."""
-    general, sols, hyps = strict
-    B = general.birge
-    s = sols[chosen] if chosen in sols else general
+    general, _, hyps = strict
+    offset = _resting(strict, chosen)[1]
 
     def z(name: str) -> float | None:
         if name == "unmetered_mass":
-            value, std = general.rate("mass", B)
-        elif name == "unmetered_heat":
+            value, std = general.rate("mass", general.birge)
+            return value / std if std > 0 else 0.0
+        if name == "unmetered_heat":
             return hyps["heat"].z
-        elif name == "temperature_sensor_bias":
-            value, std = s.value("T_l"), s.std("T_l", B)
-        elif name in hyps:
-            return hyps[name].z
-        else:
-            return None
-        return value / std if std > 0 else 0.0
+        if name == "temperature_sensor_bias":
+            return offset.z
+        return hyps[name].z if name in hyps else None
     return z
 
 
