@@ -39,11 +39,19 @@ def sampling_interval_s(run) -> float:
 
 
 
-def _less(readings: np.ndarray, offsets) -> np.ndarray:
-    """``readings`` ``(env,)`` less each of the mechanisms' ``offsets`` (floats, 0-d or ``(env,)`` tensors)."""
+def _less(readings: Tensor, offsets) -> Tensor:
+    """``readings`` ``(env,)`` less each of the mechanisms' ``offsets`` (floats, 0-d or ``(env,)`` tensors;
+    a graph they carry is kept)."""
     for off in offsets:
-        readings = readings - np.broadcast_to(torch.as_tensor(off, dtype=torch.float64).numpy(), readings.shape)
+        readings = readings - torch.as_tensor(off, dtype=torch.float64).expand(readings.shape)
     return readings
+
+
+# Central-difference steps of the initial state's slopes (Fleet.initial_state): a relative step
+# of the hydrogen pressure (1e-5: CoolProp's states are smooth to ~1e-12 relative, so the
+# truncation and the rounding error both stay below 1e-8 of the slope) and one of the liquid
+# reading (1e-4 K).
+_START_STEPS = (1.0e-5, 1.0e-4)
 
 @dataclass(frozen=True)
 class Fleet:
@@ -147,6 +155,13 @@ class Fleet:
         liquid thermometer offsets likewise from the initial liquid temperature, which they may
         then set from the saturation temperature at that pressure (``initial_liquid_K``).
 
+        Differentiable in the mechanisms' parameters: where an offset carries a graph (a
+        mechanism trained with the agent, ``trainers.mechanism_params``), the state is CoolProp's
+        value plus its linearisation in the hydrogen pressure and the liquid reading,
+        ``ds/dp (p - p.detach()) + ds/dT_l (T_l - T_l.detach())`` (zero in value; slopes by
+        central differences of CoolProp over ``_START_STEPS``), so the start moves with the
+        parameters as the reading it is built from does. Without a graph it is CoolProp's value.
+
         Raises:
             SimulationError: the offsets leave a non-positive hydrogen pressure.
         """
@@ -154,22 +169,40 @@ class Fleet:
         V = self.geometry.volume_m3.detach().numpy() * np.ones(self.n_env)
         T_v = np.array([i.T_v_K for i in ini])
         V_l = V * np.array([i.fill_ratio for i in ini])
-        T_l = np.array([i.T_l_K for i in ini])
-        with torch.no_grad():
-            p = _less(np.array([i.p_v_Pa for i in ini]),
-                      [m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l)) for m in mechanisms])
-            if (p <= 0).any():
-                # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
-                # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
-                raise SimulationError(f"initial hydrogen pressure {p} Pa is not positive after removing the "
-                                      "mechanisms' pressure offsets from the initial reading", t_s=self.t0_s)
-            # the initial liquid temperature is a reading too
-            T_l = _less(T_l, [m.liquid_temperature_offset_K(torch.as_tensor(T_l)) for m in mechanisms])
-            if any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms):
-                T_sat = torch.as_tensor(self.reference.saturation(p)["T_sat"])  # CoolProp: only where asked for
-                for m in mechanisms:
-                    T_l = m.initial_liquid_K(torch.as_tensor(T_l), T_sat).numpy()
-        return self.state_from(p, T_v, T_l, np.array([i.T_w0_K for i in ini]), V_l)
+        T_w = np.array([i.T_w0_K for i in ini])
+        p = _less(torch.as_tensor([i.p_v_Pa for i in ini], dtype=torch.float64),
+                  [m.pressure_offset_Pa(torch.as_tensor(T_v), torch.as_tensor(V - V_l)) for m in mechanisms])
+        if (p.detach() <= 0).any():
+            # A SimulationError, not a ValueError: the run is valid, the mechanisms' parameters
+            # (a trial point of a fit) leave no hydrogen, and a fit rejects such a point.
+            raise SimulationError(f"initial hydrogen pressure {p.detach().numpy()} Pa is not positive after "
+                                  "removing the mechanisms' pressure offsets from the initial reading", t_s=self.t0_s)
+        # the initial liquid temperature is a reading too
+        T_read = _less(torch.as_tensor([i.T_l_K for i in ini], dtype=torch.float64),
+                       [m.liquid_temperature_offset_K(torch.as_tensor([i.T_l_K for i in ini])) for m in mechanisms])
+        sets_liquid = any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms)
+
+        def state(p_Pa: np.ndarray, T_l_K: np.ndarray) -> Tensor:
+            if sets_liquid:
+                with torch.no_grad():
+                    T_sat = torch.as_tensor(self.reference.saturation(p_Pa)["T_sat"])  # CoolProp: only where asked for
+                    T_l = torch.as_tensor(T_l_K)
+                    for m in mechanisms:
+                        T_l = m.initial_liquid_K(T_l, T_sat)
+                T_l_K = T_l.numpy()
+            return self.state_from(p_Pa, T_v, T_l_K, T_w, V_l)
+
+        p0, T0 = p.detach().numpy(), T_read.detach().numpy()
+        s = state(p0, T0)
+        if p.requires_grad:
+            dp = _START_STEPS[0] * p0
+            slope = (state(p0 + dp, T0) - state(p0 - dp, T0)) / torch.as_tensor(2 * dp)[:, None]
+            s = s + slope * (p - p.detach())[:, None]
+        if T_read.requires_grad:
+            dT = _START_STEPS[1]
+            slope = (state(p0, T0 + dT) - state(p0, T0 - dT)) / (2 * dT)
+            s = s + slope * (T_read - T_read.detach())[:, None]
+        return s
 
     def state_from(self, p_v_Pa, T_v_K, T_l_K, T_w_K, V_l_m3) -> Tensor:
         """State ``(env, 7)`` from per-environment (p_v, T_v, T_l, T_w, V_l) arrays, via CoolProp."""

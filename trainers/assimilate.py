@@ -507,7 +507,7 @@ class Assimilator:
             trained = tuple(dict.fromkeys(trained + ("saturated_boiling",)))
         self.model = TankModel(self.fleet.fluid, self.fleet.geometry, self.closure,
                                self.fleet.wall_heat_capacity_J_per_K, mechanisms)
-        self.s0 = Assimilator._start_state(self)  # (env, n_state); a subclass's groups are not built yet
+        self.s0 = Assimilator.start_state(self)  # (env, n_state); a subclass's groups are not built yet
         self.scale = state_scale(self.s0, self.fleet.geometry.volume_m3, self.model.extra_state_scales)
         self.solver = config.solver()
         self.windows = window_edges(self.fleet.t0_s, self.fleet.t_end_s, config.window_s)
@@ -525,9 +525,20 @@ class Assimilator:
         # The two-node wall's start is chosen by the first window's update (_place_wall_start).
         self._wall_start_pending = wall_added
 
-    def _start_state(self) -> Tensor:
-        """The fleet's initial state ``(env, n_state)`` with the mechanisms' values as they stand."""
+    def start_state(self) -> Tensor:
+        """The fleet's initial state ``(env, n_state)`` with the mechanisms' values as they stand
+        (differentiable in trained ones that offset a reading it is built from:
+        ``tankode.fleet.Fleet.initial_state``)."""
         return self.model.initial_state(self.fleet.initial_state(self.model.mechanisms))
+
+    def _trained_start(self, s0: Tensor) -> Tensor:
+        """The run's first state for an evaluation: ``s0``, or, where a trained mechanism offsets a
+        reading it is built from (``TrainedMechanisms.sets_start``), rebuilt from the trained values
+        as they stand, differentiably, since it moves with them."""
+        if not self.trained.sets_start:
+            return s0
+        self.trained.apply()
+        return self.start_state()
 
     def _wall(self) -> Mechanism | None:
         """The model's two-node wall, or None without one."""
@@ -537,7 +548,7 @@ class Assimilator:
         """Set the two-node wall's ``start_share``; return the fleet's initial state from it."""
         wall = self._wall()
         wall.set_values([share if p.name == "start_share" else v for p, v in zip(wall.params, wall.value.tolist())])
-        return self._start_state()
+        return self.start_state()
 
     def _place_wall_start(self) -> str:
         """Set the two-node wall's ``start_share`` (``tankode.mechanisms.TwoNodeWall``) and ``s0``;
@@ -594,7 +605,7 @@ class Assimilator:
                     raise StopStep("a quarter of the update budget spent")
                 calls[0] += 1
                 return self.parallel.data_cost(lambda: cost(self.model.observe(
-                    self.predict(s0, t0, t_eval, cfg.gradient)[:, obs_index]), window), tensors)
+                    self.predict(self._trained_start(s0), t0, t_eval, cfg.gradient)[:, obs_index]), window), tensors)
 
             failed, J = False, float("nan")
             try:
@@ -603,7 +614,8 @@ class Assimilator:
                 opt.step(loss)
                 self.trained.settle()
                 with torch.no_grad():
-                    J = float(cost(self.model.observe(self.predict(s0, t0, t_eval, NoGradient())[:, obs_index]), window))
+                    J = float(cost(self.model.observe(
+                        self.predict(self._trained_start(s0), t0, t_eval, NoGradient())[:, obs_index]), window))
             except (SimulationError, StopStep, FloatingPointError):
                 failed = True
             self.closure.load_state_dict(agent)
@@ -792,8 +804,13 @@ class Assimilator:
         indices = [torch.searchsorted(t_eval, w.t_s) for w in windows]
         shares = [len(idx) / self.fleet.n_env for idx in self.cost_groups]
 
+        rebuilt_start = self.trained.sets_start and t_start == self.fleet.t0_s
+
         def group_cost(g, mask):
-            s0 = s_start if estimate is None else estimate.state()
+            if rebuilt_start:
+                s0 = self._trained_start(s_start)
+            else:
+                s0 = s_start if estimate is None else estimate.state()
             states = self._group_predict(g, s0, t_start, t_eval, cfg.gradient)
             J = w_new * cost(self._group_observe(g, states[:, indices[g]]), windows[g], mask)
             if replay:
@@ -884,6 +901,9 @@ class Assimilator:
                     note = noted(spent())
                     break
         self.trained.settle()
+        if rebuilt_start:
+            with torch.no_grad():
+                s_start = self.s0 = self.start_state()
         offsets = []
         if estimate is not None:
             with torch.no_grad():

@@ -64,7 +64,7 @@ class GroupedAssimilator(Assimilator):
         return [self._submodel(self.model, g).initial_state(f.initial_state(self.model.mechanisms))
                 for g, f in enumerate(self._fleets)]
 
-    def _start_state(self) -> Tensor:
+    def start_state(self) -> Tensor:
         return torch.cat(self._group_start_states(), dim=0)[self._order]
 
     def _submodel(self, model: TankModel, g: int) -> TankModel:

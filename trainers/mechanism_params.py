@@ -24,11 +24,14 @@ and it drifts with what the agent compensates there. On the MHTB tests with the 
 shell at the same value from starts an order of magnitude apart, on either test; fixed windows
 end where the start leaves them, or at the parameter's bound.
 
+A mechanism that offsets a reading the first state is built from (``pressure_sensor_bias``,
+``noncondensable_gas``, ``temperature_sensor_bias``) also moves that state: the update of a
+window that starts at the run's start rebuilds it from the trained values on every evaluation
+(``sets_start``), differentiably (``tankode.fleet.Fleet.initial_state``). A later fixed window
+starts from the carried state, where such a mechanism acts only through what the sensors read.
+
 Limits:
 
-* A mechanism that offsets the pressure reading (``pressure_sensor_bias``,
-  ``noncondensable_gas``) also changes the initial state built from that reading (with
-  CoolProp, outside autograd), so its gradient would be wrong: such mechanisms are refused.
 * Every parameter must start strictly inside its bounds, so a mechanism whose presence is
   bounded below by 0 (a heat leak) starts present, however little: the bounded optimiser's
   map has no slope on a bound. A parameter the cost has no slope in at its start does not move
@@ -57,7 +60,7 @@ class TrainedMechanisms:
 
     Raises:
         ValueError: an id not among the model's mechanisms (naming those it has), a mechanism
-            with per-environment values, or one that offsets the pressure reading.
+            with per-environment values, or one that starts on a bound.
     """
 
     def __init__(self, mechanisms, ids):
@@ -68,9 +71,6 @@ class TrainedMechanisms:
                              "(add them to the model first, e.g. `tankode assimilate --mechanism ID:NAME=VALUE`)")
         self.mechanisms = [by_id[i] for i in ids]
         for m in self.mechanisms:
-            if type(m).pressure_offset_Pa is not Mechanism.pressure_offset_Pa:
-                raise ValueError(f"train_mechanisms: {m.id!r} offsets the pressure reading, which also sets the "
-                                 "initial state (built outside autograd): fit it with `tankode diagnose` instead")
             if m.value.ndim != 1:
                 raise ValueError(f"train_mechanisms: {m.id!r} has per-environment values; one value per "
                                  "parameter is trained")
@@ -93,6 +93,14 @@ class TrainedMechanisms:
         # tensor outside them would get no gradient from Adjoint().
         for m, x in zip(self.mechanisms, self.xi):
             m.register_parameter(XI_NAME, x)
+
+    @property
+    def sets_start(self) -> bool:
+        """Whether a trained mechanism offsets a reading the run's first state is built from
+        (the pressure or the liquid temperature), so that the first state moves with it."""
+        return any(type(m).pressure_offset_Pa is not Mechanism.pressure_offset_Pa
+                   or type(m).liquid_temperature_offset_K is not Mechanism.liquid_temperature_offset_K
+                   for m in self.mechanisms)
 
     def named(self) -> list[tuple[str, Tensor]]:
         """``(name, xi)`` pairs for the optimiser, named ``mechanism.<id>``."""
