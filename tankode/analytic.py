@@ -64,6 +64,10 @@ class AnalyticFluid(nn.Module):
         h_l = c.c_l_J_per_kgK * (T_sat - c.T0_K) + p / c.rho_l0_kg_m3
         return T_sat, h_l, h_l + c.L_J_per_kg
 
+    def saturation_K(self, p_Pa: Tensor) -> Tensor:
+        """Saturation temperature (K) at pressure ``p_Pa`` (Pa)."""
+        return self._saturation(p_Pa)[0]
+
     def vapor(self, u: Tensor, rho: Tensor) -> PhaseProps:
         c = self.params
         T = c.T0_K + (u - c.L_J_per_kg) / c.cv_v_J_per_kgK

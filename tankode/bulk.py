@@ -71,21 +71,24 @@ class BulkPhaseChange:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"BulkPhaseChange.{name} must be finite and > 0, got {v}")
 
-    def rates_kg_s(self, m_v: Tensor, m_l: Tensor, pv, pl, margin_K=None) -> tuple[Tensor, Tensor]:
+    def rates_kg_s(self, m_v: Tensor, m_l: Tensor, pv, pl, margin_K=None, T_boil_K=None) -> tuple[Tensor, Tensor]:
         """(J_fog, J_flash) in kg/s, each ``(env,)`` and >= 0, from the phases' masses and properties.
 
         ``margin_K``: how far past saturation the phases' branches reach (the property domain's
         metastable margin, which narrows towards the critical point): each threshold is capped
         at two thirds of it, so the bulk relaxation starts before a state leaves its branch.
+        ``T_boil_K``: the liquid's boiling point ``(env,)``, saturation at the pressure it bears
+        (with an inert gas in the ullage, the total; ``pv.T_sat`` by default).
         """
         fog = self._excess(pv.T_sat - pv.T, self.fog_threshold_K, margin_K)
-        return m_v * pv.cp * fog / ((pv.h_vsat - pv.h_lsat) * self.tau_s), self.flash_kg_s(m_l, pv, pl, margin_K)
+        return (m_v * pv.cp * fog / ((pv.h_vsat - pv.h_lsat) * self.tau_s),
+                self.flash_kg_s(m_l, pv, pl, margin_K, T_boil_K))
 
-    def flash_kg_s(self, m_l: Tensor, pv, pl, margin_K=None) -> Tensor:
+    def flash_kg_s(self, m_l: Tensor, pv, pl, margin_K=None, T_boil_K=None) -> Tensor:
         """J_flash in kg/s, ``(env,)`` and >= 0: ``rates_kg_s``'s second term alone."""
         # Saturation at the ullage's pressure: the liquid's own p(u, rho) is steep and only its
         # derivatives drive the model (tankode.model, "Volume split").
-        flash = self._excess(pl.T - pv.T_sat, self.flash_threshold_K, margin_K)
+        flash = self._excess(pl.T - (pv.T_sat if T_boil_K is None else T_boil_K), self.flash_threshold_K, margin_K)
         return m_l * pl.cp * flash / ((pv.h_vsat - pv.h_lsat) * self.tau_s)
 
     def _excess(self, past_K: Tensor, threshold_K: float, margin_K) -> Tensor:

@@ -39,7 +39,9 @@ surrogate's liquid and vapour pressures (its fitting error) does not perturb the
 
 Bulk phase change. Beyond a metastable threshold past saturation, the ullage forms fog and the
 liquid flashes in their volumes (``tankode.bulk``), conserving mass and energy; the printed
-paper has no such term.
+paper has no such term. The liquid boils past saturation at the pressure it bears
+(``boiling_point_K``): with an inert gas in the ullage that is the total pressure, while the
+interface stays at saturation of the fluid's partial pressure.
 
 Mechanisms. Effects the baseline leaves out (``tankode.mechanisms``: heat leaks, unmetered
 losses, sensor biases, ...) enter through hooks: the forcing actually applied, extra heat into
@@ -251,6 +253,15 @@ class TankModel(nn.Module):
             cw = cw * m.wall_capacity_factor()
         return cw
 
+    def boiling_point_K(self, vapor, V_v_m3: Tensor) -> Tensor:
+        """The liquid's bulk boiling point ``(env,)`` (K): saturation at the pressure it bears, the
+        fluid's (``vapor.T_sat``) plus the mechanisms' inert partial pressures (``inert_pressure_Pa``)."""
+        inert = [m.inert_pressure_Pa(vapor.T, V_v_m3) for m in self.mechanisms
+                 if type(m).inert_pressure_Pa is not Mechanism.inert_pressure_Pa]
+        if not inert:
+            return vapor.T_sat
+        return self.fluid.saturation_K(vapor.p + sum(inert))
+
     def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor):
         """Sensor pressure minus hydrogen pressure from the mechanisms (Pa), shaped like ``T_v_K``."""
         return sum((m.pressure_offset_Pa(T_v_K, V_v_m3) for m in self.mechanisms), torch.zeros_like(T_v_K))
@@ -312,13 +323,15 @@ class TankModel(nn.Module):
         e_l = (fc.mdot_l_in_kg_s * fc.h_l_in_J_per_kg - fc.mdot_l_out_kg_s * f.h_l_J_per_kg
                - J * f.h_lsat_J_per_kg + f.Q_wl_W - f.Q_li_W + q_l)
         fog, flash = 0.0, 0.0
+        T_boil = self.boiling_point_K(pv, V_v)
         if self.bulk is not None:
             domain = getattr(self.fluid, "domain", None)  # analytic test fluids have none
             fog, flash = self.bulk.rates_kg_s(m_v, m_l, pv, pl,
-                                              None if domain is None else torch.as_tensor(domain.margin_K(pv.T_sat.detach())))
+                                              None if domain is None else torch.as_tensor(domain.margin_K(pv.T_sat.detach())),
+                                              T_boil)
         zs = self.mechanism_states(s)
         for m, z in zip(self.mechanisms, zs):
-            flash = flash + m.flash_kg_s(m_v, m_l, pv, pl, z)
+            flash = flash + m.flash_kg_s(m_v, m_l, pv, pl, z, T_boil)
         # fog leaves the vapour as saturated liquid, flash the liquid as saturated vapour
         dm_v = dm_v - fog + flash
         dm_l = dm_l + fog - flash

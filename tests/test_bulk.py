@@ -124,3 +124,37 @@ def test_a_foreign_sphere_vent_levels_off_on_the_liquid_boiling(tmp_path):
     default = _vent_plateau_error_Pa(run, BulkPhaseChange())
     late = _vent_plateau_error_Pa(run, BulkPhaseChange(flash_threshold_K=1.0))
     assert default < 1.2e4 and late > 2.0e4, (default, late)
+
+
+def test_a_liquid_under_an_inert_gas_boils_at_the_total_pressure_not_the_partial_one():
+    """The interface sits at saturation of the fluid's partial pressure (Dalton), but a bubble in the
+    liquid's bulk holds the fluid alone against the total pressure: a liquid 1 K past saturation at
+    its fluid's pressure and 0.3 K below saturation at the total does not flash under the inert gas,
+    and does without it. The boiling point is the fluid's saturation at the total pressure."""
+    from tankode.mechanisms import make_mechanism
+    from tankode.mechanisms.noncondensable import R_J_PER_MOLK
+
+    fluid = AnalyticFluid()
+    geom = geometry_from_spec({"shape": "vertical_cylinder", "radius_m": 0.9, "height_m": 2.2})
+    probe = analytic_state(fluid, geom, 2e5, 30.0, 20.0, 25.0, 0.6)[0]
+    pv0 = fluid.vapor(probe[2:3], probe[0:1] / probe[5:6])
+    T_l = float(pv0.T_sat) + 1.0
+    lo, hi = 2e5, 2e6  # the total pressure whose saturation is T_l + 0.3 K
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if float(fluid.saturation_K(torch.tensor([mid], dtype=torch.float64))) < T_l + 0.3 else (lo, mid)
+    n_mol = (lo - float(pv0.p)) * float(probe[5]) / (R_J_PER_MOLK * float(pv0.T))
+    s0 = analytic_state(fluid, geom, 2e5, 30.0, T_l, 25.0, 0.6)
+    closure = ConstantClosure([1e-6, 1e-6, 1e-6, 1e-6])  # only the bulk relaxation acts
+    t = torch.linspace(0.0, 300.0, 31, dtype=torch.float64)
+    gained = {}
+    for name, mechanisms in (("inert", (make_mechanism("noncondensable_gas", n_mol=n_mol),)), ("pure", ())):
+        model = TankModel(fluid, geom, closure, 2e5, mechanisms)
+        states, _ = integrate(model, s0, [(0.0, 300.0)], lambda t0, s: Forcing.rest(1), t,
+                              state_scale(s0, geom.volume_m3), AdaptiveRK(rtol=1e-10, atol=1e-12), NoGradient())
+        gained[name] = float(states[0, -1, 0] - states[0, 0, 0])
+        if name == "inert":
+            pv = fluid.vapor(s0[:, 2], s0[:, 0] / s0[:, 5])
+            assert float(model.boiling_point_K(pv, s0[:, 5])) == pytest.approx(T_l + 0.3, abs=1e-6)
+    assert gained["pure"] > 0.1  # kg flashed in 300 s
+    assert abs(gained["inert"]) < 1e-3 * gained["pure"]

@@ -13,6 +13,9 @@ It acts through hooks of ``TankModel``, each a no-op by default:
 * ``interface_offset_K``: a liquid surface temperature above the bulk's at the interface;
 * ``flash_kg_s``: liquid flashing to vapour beside the bulk's (``tankode.bulk``), leaving the
   liquid as saturated vapour;
+* ``inert_pressure_Pa``: the partial pressure of an inert gas in the ullage, which the liquid
+  bears: its bulk boils at saturation of the total pressure (a bubble inside it holds the fluid
+  alone), its surface at saturation of the fluid's own (Dalton);
 * ``state_derivative``: the rate of the mechanism's own states (``states``, e.g. a surface
   layer's temperature excess), which the model appends to the 7 of ``tankode.state``;
 * ``wall_capacity_factor``: multiply m_w c_w;
@@ -202,9 +205,11 @@ class Mechanism(nn.Module):
         """How much warmer than the bulk liquid the liquid at the interface is (K), given own states ``z``."""
         return 0.0
 
-    def flash_kg_s(self, m_v: Tensor, m_l: Tensor, vapor, liquid, z: Tensor) -> Tensor | float:
+    def flash_kg_s(self, m_v: Tensor, m_l: Tensor, vapor, liquid, z: Tensor, T_boil_K: Tensor) -> Tensor | float:
         """Liquid flashing to vapour (kg/s, >= 0) beside the bulk's, from the phases' masses
-        ``(env,)`` and properties (``vapor.T_sat`` at the ullage pressure) and own states ``z``."""
+        ``(env,)`` and properties, own states ``z`` and the liquid's boiling point ``T_boil_K``
+        ``(env,)`` (saturation at the pressure the liquid bears: ``vapor.T_sat`` unless an inert
+        gas adds to it, ``inert_pressure_Pa``)."""
         return 0.0
 
     def initial_state(self, s0: Tensor, start: Start) -> Tensor:
@@ -227,6 +232,12 @@ class Mechanism(nn.Module):
 
     def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor) -> Tensor | float:
         """Sensor pressure minus hydrogen pressure (Pa) for ullage temperature and volume ``(...)``."""
+        return 0.0
+
+    def inert_pressure_Pa(self, T_v_K: Tensor, V_v_m3: Tensor) -> Tensor | float:
+        """Partial pressure (Pa) of gases other than the fluid in the ullage, for ullage temperature
+        and volume ``(...)``: the liquid bears it, so its bulk boils at saturation of the fluid's
+        pressure plus this, while the interface sits at saturation of the fluid's pressure alone."""
         return 0.0
 
     def liquid_temperature_offset_K(self, T_l_K: Tensor) -> Tensor | float:

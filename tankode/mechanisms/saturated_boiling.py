@@ -47,8 +47,8 @@ class SaturatedBoiling(Mechanism):
 
     _BOILING = BulkPhaseChange(flash_threshold_K=THRESHOLD_K)
 
-    def flash_kg_s(self, m_v, m_l, vapor, liquid, z):
-        return self.param(0, m_l) * self._BOILING.flash_kg_s(m_l, vapor, liquid)
+    def flash_kg_s(self, m_v, m_l, vapor, liquid, z, T_boil_K):
+        return self.param(0, m_l) * self._BOILING.flash_kg_s(m_l, vapor, liquid, T_boil_K=T_boil_K)
 
 
 __all__ = ["SaturatedBoiling"]

@@ -158,6 +158,10 @@ class Surrogate(nn.Module):
         mods = self._modules
         return evaluate_phase(mods["_liquid"], mods["saturation_poly"], u, rho)
 
+    def saturation_K(self, p_Pa: Tensor) -> Tensor:
+        """Saturation temperature (K) at pressure ``p_Pa`` (Pa), a tensor of any shape."""
+        return self.saturation_poly(p_Pa.reshape(-1))[:, 0].reshape(p_Pa.shape)
+
     def props(self, phase: str, u: Tensor, rho: Tensor) -> PhaseProps:
         """``vapor`` or ``liquid`` by name."""
         return self._evaluate(self._phase(phase), u, rho)
