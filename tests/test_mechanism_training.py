@@ -34,18 +34,23 @@ START = {"heat_leak_vapor": {"Q_W": 10.0}, "wall_heat_capacity_error": {"eps": 0
 
 
 def _assimilator(data, iters=20, start=START, **cfg):
+    """One growing window over the whole run, the closure known, ``start``'s mechanisms trained."""
     mechanisms = tuple(make_mechanism(mid, **v) for mid, v in start.items())
     config = AssimilationConfig.paper(window_s=1e9, mode="growing", iters=iters, gradient=Backprop(),
-                                train_mechanisms=tuple(HIDDEN), **cfg)
+                                      train_mechanisms=tuple(start), **cfg)
     return Assimilator([data], config, closure=TRUTH, mechanisms=mechanisms)
+
+
+def _clean_run_with(hidden: dict):
+    """The run simulated with the ``hidden`` mechanisms, clean observations."""
+    mechanisms = tuple(make_mechanism(mid, **v) for mid, v in hidden.items())
+    (d,) = solution_to_runs(_run(), simulate(_run(), TRUTH, mechanisms=mechanisms), noise="clean")
+    return d
 
 
 @pytest.fixture(scope="module")
 def data():
-    run = _run()
-    hidden = tuple(make_mechanism(mid, **v) for mid, v in HIDDEN.items())
-    (d,) = solution_to_runs(run, simulate(run, TRUTH, mechanisms=hidden), noise="clean")
-    return d
+    return _clean_run_with(HIDDEN)
 
 
 @pytest.mark.parametrize("gradient", [Backprop(), Adjoint(), Checkpointed()], ids=lambda g: type(g).__name__)
@@ -98,25 +103,17 @@ READINGS = {"noncondensable_gas": {"n_mol": 120.0}, "temperature_sensor_bias": {
 
 @pytest.fixture(scope="module")
 def offset_data():
-    run = _run()
-    hidden = tuple(make_mechanism(mid, **v) for mid, v in READINGS.items())
-    (d,) = solution_to_runs(run, simulate(run, TRUTH, mechanisms=hidden), noise="clean")
-    return d
+    return _clean_run_with(READINGS)
 
 
-def _reading_assimilator(data, iters=20, start=(40.0, 0.1), **cfg):
-    mechanisms = (make_mechanism("noncondensable_gas", n_mol=start[0]),
-                  make_mechanism("temperature_sensor_bias", bias_K=start[1]))
-    config = AssimilationConfig.paper(window_s=1e9, mode="growing", iters=iters, gradient=Backprop(),
-                                      train_mechanisms=tuple(READINGS), **cfg)
-    return Assimilator([data], config, closure=TRUTH, mechanisms=mechanisms)
+READINGS_START = {"noncondensable_gas": {"n_mol": 40.0}, "temperature_sensor_bias": {"bias_K": 0.1}}  # a third
 
 
 def test_gradient_through_the_first_state_built_from_offset_readings(offset_data):
     """d J / d xi of an inert gas and a thermometer bias, whose values also set the first state
     (the hydrogen's pressure is the reading less the gas's, the liquid's temperature the reading
     less the bias), against central differences: the start's linearisation carries the slope."""
-    a = _reading_assimilator(offset_data, rtol=1e-10, atol=1e-12)
+    a = _assimilator(offset_data, start=READINGS_START, rtol=1e-10, atol=1e-12)
     (_, xi_gas), (_, xi_bias) = a.trained.named()
     window = Window.from_runs(a.fleet.runs, a.fleet.t0_s - 1e-9, a.fleet.t_end_s)
 
@@ -140,7 +137,7 @@ def test_gradient_through_the_first_state_built_from_offset_readings(offset_data
 def test_inert_gas_and_thermometer_bias_trained_with_the_start_are_recovered(offset_data):
     """Hidden in clean data (the closure known), started at a third of their values: one update
     recovers both within 1 % and leaves the assimilator's first state built from them."""
-    a = _reading_assimilator(offset_data, iters=30)
+    a = _assimilator(offset_data, iters=30, start=READINGS_START)
     result = a.run()
     got = result.reports[-1].mechanisms
     assert got["noncondensable_gas"]["n_mol"] == pytest.approx(120.0, rel=0.01), got
