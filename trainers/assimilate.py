@@ -924,6 +924,10 @@ class Assimilator:
             if isinstance(self.closure, MLPClosure):
                 position = torch.stack([self.closure.output_position(x) for x in inputs], dim=1)
                 saturated = (position.abs() >= SATURATED_TANH).double().mean(1).tolist()
+        if replay and after > before:
+            # Not a failed update: it minimises this window and the replayed earlier data together.
+            note = noted(f"this window's J rose: the update fits it with {len(replay)} replayed segments of "
+                         f"the earlier data, which weigh {1 - w_new:.0%} of its cost")
         if remembering and len(window) > 0:
             self.memories.append(remember(self, s_start, t_start, t_eval, obs_index, window, states, duration_s))
         if cfg.mode == "replay":
