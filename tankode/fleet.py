@@ -178,8 +178,8 @@ class Fleet:
             raise SimulationError(f"initial hydrogen pressure {p.detach().numpy()} Pa is not positive after "
                                   "removing the mechanisms' pressure offsets from the initial reading", t_s=self.t0_s)
         # the initial liquid temperature is a reading too
-        T_read = _less(torch.as_tensor([i.T_l_K for i in ini], dtype=torch.float64),
-                       [m.liquid_temperature_offset_K(torch.as_tensor([i.T_l_K for i in ini])) for m in mechanisms])
+        T_l_read = torch.as_tensor([i.T_l_K for i in ini], dtype=torch.float64)
+        T_read = _less(T_l_read, [m.liquid_temperature_offset_K(T_l_read) for m in mechanisms])
         sets_liquid = any(type(m).initial_liquid_K is not Mechanism.initial_liquid_K for m in mechanisms)
 
         def state(p_Pa: np.ndarray, T_l_K: np.ndarray) -> Tensor:

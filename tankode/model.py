@@ -125,6 +125,8 @@ class TankModel(nn.Module):
         if len(set(ids)) != len(ids):
             raise ValueError(f"each mechanism may appear once, got {ids}")
         self.mechanisms = nn.ModuleList(mechanisms)
+        # Those that put an inert gas in the ullage (boiling_point_K, on every right-hand side).
+        self._inert = tuple(m for m in mechanisms if type(m).inert_pressure_Pa is not Mechanism.inert_pressure_Pa)
         self.fluid = fluid
         self.geometry = geometry
         self.closure = closure
@@ -256,11 +258,9 @@ class TankModel(nn.Module):
     def boiling_point_K(self, vapor, V_v_m3: Tensor) -> Tensor:
         """The liquid's bulk boiling point ``(env,)`` (K): saturation at the pressure it bears, the
         fluid's (``vapor.T_sat``) plus the mechanisms' inert partial pressures (``inert_pressure_Pa``)."""
-        inert = [m.inert_pressure_Pa(vapor.T, V_v_m3) for m in self.mechanisms
-                 if type(m).inert_pressure_Pa is not Mechanism.inert_pressure_Pa]
-        if not inert:
+        if not self._inert:
             return vapor.T_sat
-        return self.fluid.saturation_K(vapor.p + sum(inert))
+        return self.fluid.saturation_K(vapor.p + sum(m.inert_pressure_Pa(vapor.T, V_v_m3) for m in self._inert))
 
     def pressure_offset_Pa(self, T_v_K: Tensor, V_v_m3: Tensor):
         """Sensor pressure minus hydrogen pressure from the mechanisms (Pa), shaped like ``T_v_K``."""
