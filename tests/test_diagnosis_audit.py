@@ -191,6 +191,23 @@ def test_a_single_cause_is_named_only_when_significant_explaining_and_unrivalled
     assert _name(Estimate(-2e-5, 1e-5), Estimate(40.0, 10.0), h, 19.0, None, [], config, True)[0] == []
 
 
+def test_a_wall_capacity_that_a_steady_heat_at_the_stated_capacity_matches_is_not_named_alone():
+    """The wall's correction (freed) at 8 standard errors is best, and the heat's own fit reads ~0
+    because the wall's prior absorbs it; with the stated capacity held, 290 +- 20 W explains the
+    balances within ``chi2_separation``: both are listed, with the heat at the stated capacity.
+    Where the stated-capacity heat explains worse by more, the wall alone is named."""
+    config = AuditConfig()
+    wall = Hypothesis("wall_heat_capacity_error", 33.6, Estimate(0.66, 0.042), -8.0)
+    h = _hyps(heat=(34.5, 82.0, 85.0), heat_at_stated_wall=(36.0, 290.0, 20.0))
+    h["wall_heat_capacity_error"] = wall
+    (found,), chosen = _name(None, Estimate(84.0, 88.0), h, 33.0, None, [], config, False)
+    assert found.name == "unmetered_heat" and found.estimate == Estimate(290.0, 20.0) and chosen == ""
+    assert found.candidates == ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor", "wall_heat_capacity_error")
+    h["heat_at_stated_wall"] = Hypothesis("heat_at_stated_wall", 60.0, Estimate(290.0, 20.0), 14.5)
+    (found,), chosen = _name(None, Estimate(84.0, 88.0), h, 33.0, None, [], config, False)
+    assert found.name == "wall_heat_capacity_error" and chosen == "wall_heat_capacity_error"
+
+
 def test_unmetered_heat_is_named_with_the_places_it_may_enter_and_heat_leaving_with_none():
     config = AuditConfig()
     h = _hyps(heat=(20.0, 400.0, 15.0), vapor_leak=(500.0, -8e-4, 3e-5), liquid_leak=(700.0, -1e-3, 5e-5))

@@ -79,7 +79,10 @@ Detection*, 2000). Per run:
    hypothesis is worse by ``chi2_separation`` or more. Unmetered heat is named with the three
    places it may enter (the whole-tank balance cannot locate it); hypotheses that cannot be
    told apart are listed together. A wrong wall heat capacity competes as one more hypothesis
-   (its correction freed from the prior); a liquid temperature offset ``z_name`` standard errors
+   (its correction freed from the prior); where the wall warms or cools at a steady rate, a
+   constant unmetered heat with the stated capacity held explains the balances as well (the
+   heat's own fit spends the wall's prior on it and reads ~0), and the two are listed together,
+   the heat as measured at the stated capacity; a liquid temperature offset ``z_name`` standard errors
    from zero under the chosen explanation is named as a biased liquid temperature sensor, unless
    the liquid it implies would sit ``saturation_margin_K`` or more above saturation (median).
 
@@ -123,6 +126,9 @@ HYPOTHESES = ("heat", "vapor_leak", "liquid_leak", "inflow_meter_bias", "wall_he
 # kg/mol; the inert gas the audit tests for (helium, the pressurant of cryogenic tanks).
 M_INERT_KG_PER_MOL = 4.002602e-3
 HEAT_CANDIDATES = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
+# The unmetered heat with the wall's heat capacity held at the stated one (no wall correction): the
+# rival of a wrong wall heat capacity where the wall warms or cools at a steady rate (step 6).
+HEAT_AT_STATED_WALL = "heat_at_stated_wall"
 
 
 # The equation of state's perturbations the audit carries as nuisances, and their priors' fields.
@@ -855,7 +861,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     findings[:0] = _thermometer(offset, superheat, config)
     kept, withheld = [], []
     for f in findings:
-        z = z_strict(f.name)
+        z = z_strict(f)
         if z is None or abs(z) >= config.z_name:
             kept.append(f)
         else:
@@ -904,11 +910,14 @@ def _strict_z(strict, chosen: str):
     general, _, hyps = strict
     offset = _resting(strict, chosen)[1]
 
-    def z(name: str) -> float | None:
+    def z(f: InventoryFinding) -> float | None:
+        name = f.name
         if name == "unmetered_mass":
             value, std = general.rate("mass", general.birge)
             return value / std if std > 0 else 0.0
         if name == "unmetered_heat":
+            if "wall_heat_capacity_error" in f.candidates and HEAT_AT_STATED_WALL in hyps:
+                return hyps[HEAT_AT_STATED_WALL].z
             return hyps["heat"].z
         if name == "temperature_sensor_bias":
             return offset.z
@@ -935,6 +944,11 @@ def _explain(fit: "_RunFit", mass_level: bool, excluded: str):
         value, std = s.rate(name, B)
         shown = 1.0 + value if name == "wall_heat_capacity_error" else value
         hyps[name] = Hypothesis(name, s.chi2 / B**2, Estimate(shown, std), value / std if std > 0 else 0.0)
+    if fit.use_wall:
+        s = sols[HEAT_AT_STATED_WALL] = fit.solve(["heat"], stated_wall=True)
+        value, std = s.rate("heat", B)
+        hyps[HEAT_AT_STATED_WALL] = Hypothesis(HEAT_AT_STATED_WALL, s.chi2 / B**2, Estimate(value, std),
+                                               value / std if std > 0 else 0.0)
     return general, sols, hyps
 
 
@@ -1005,16 +1019,18 @@ class _RunFit:
     def column(self, name: str) -> np.ndarray:
         return np.concatenate([d.cols[name] for d in self.datas])
 
-    def solve(self, rates: list[str]) -> _Solution:
-        """Fit with the rate columns ``rates``; ``"wall_heat_capacity_error"`` frees the wall correction's prior."""
+    def solve(self, rates: list[str], stated_wall: bool = False) -> _Solution:
+        """Fit with the rate columns ``rates``; ``"wall_heat_capacity_error"`` frees the wall correction's
+        prior, ``stated_wall`` drops the correction (the stated heat capacity taken as exact)."""
         free_wall = "wall_heat_capacity_error" in rates
         rates = [k for k in rates if k != "wall_heat_capacity_error"]
-        names = list(self.nuisance) + rates
-        X = np.column_stack(self.base + [self.nuisance[k] for k in self.nuisance] + [self.column(k) for k in rates])
+        nuisance = [k for k in self.nuisance if not (stated_wall and k == "wall")]
+        names = nuisance + rates
+        X = np.column_stack(self.base + [self.nuisance[k] for k in nuisance] + [self.column(k) for k in rates])
         index = {k: len(self.base) + i for i, k in enumerate(names)}
         if free_wall:
             index["wall_heat_capacity_error"] = index["wall"]
-        prior = {k: v for k, v in self.prior.items() if not (free_wall and k == "wall")}
+        prior = {k: v for k, v in self.prior.items() if k in nuisance and not (free_wall and k == "wall")}
         # Priors on the nuisances as pseudo-observations.
         k = X.shape[1]
         P = np.zeros((len(prior), k))
@@ -1106,8 +1122,8 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
     z, sep = config.z_name, config.chi2_separation
     note = "" if mass_level else " (no level sensor: an unmetered mass loss would read as heat too)"
     # A leak's rate is a loss (> 0), an amount of gas is positive: a fitted negative one is neither.
-    admissible = [h for h in hyps.values()
-                  if h.name not in ("vapor_leak", "liquid_leak", "noncondensable_gas") or h.estimate.value > 0]
+    admissible = [h for h in hyps.values() if h.name in HYPOTHESES
+                  and (h.name not in ("vapor_leak", "liquid_leak", "noncondensable_gas") or h.estimate.value > 0)]
     if ullage is not None:
         admissible = [h for h in admissible if h.name != "noncondensable_gas"
                       or ullage.partial_pressure_Pa(h.estimate.value - 3 * h.estimate.std) <= ullage.room_Pa]
@@ -1120,7 +1136,21 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
         # A rival explains the data about as well with its own rate resolved (|z| >= 3); one whose rate
         # is ~0 there only says the nuisances (wall capacity prior, liquid offset) could explain it.
         rivals = [h for h in admissible if h is not best and h.chi2 - best.chi2 < sep and abs(h.z) >= 3]
-        if significant and explains and not rivals:
+        # A wall that warms or cools at a steady rate stores heat like a constant unmetered heat:
+        # the heat's own fit then lets the wall correction's prior take it (its rate ~0), and only
+        # with the stated heat capacity held does the heat stand as the wall's equal.
+        stated = hyps.get(HEAT_AT_STATED_WALL)
+        confounded = (best.name == "wall_heat_capacity_error" and stated is not None and stated.estimate.value > 0
+                      and stated.chi2 - best.chi2 < sep and abs(stated.z) >= z)
+        if significant and explains and confounded:
+            w, e = best.estimate, stated.estimate
+            out.append(InventoryFinding(
+                "unmetered_heat", e, "W", HEAT_CANDIDATES + (best.name,),
+                f"unmetered heat {e.value:.3g} +- {e.std:.2g} W entering the tank at the stated wall heat capacity, or "
+                f"a wall that stores heat as {w.value:.3g} +- {w.std:.2g} times the stated heat capacity: the wall "
+                f"changes temperature at a steady rate, so the balances do not tell a heat leak (into the wall, "
+                f"the liquid or the ullage) from a wrong wall heat capacity{note}"))
+        elif significant and explains and not rivals:
             out.append(_single(best, note, ullage))
             chosen = best.name
         elif free_mass or free_heat or (significant and explains):
@@ -1138,9 +1168,12 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
                     f"{heat.value:.3g} +- {heat.std:.2g} W beside it; the balances do not tell which of "
                     f"{listed} carries it"))
             else:
+                # Where the wall's heat capacity is among the candidates, the heat is the one at the stated capacity.
+                e, at = ((stated.estimate, " at the stated wall heat capacity")
+                         if "wall_heat_capacity_error" in cands and stated is not None else (heat, ""))
                 out.append(InventoryFinding(
-                    "unmetered_heat", heat, "W", cands,
-                    f"unmetered heat {heat.value:.3g} +- {heat.std:.2g} W{note}; the balances do not tell "
+                    "unmetered_heat", e, "W", cands,
+                    f"unmetered heat {e.value:.3g} +- {e.std:.2g} W{at}{note}; the balances do not tell "
                     f"{listed} apart"))
     persistent_cold = any(p and s.startswith("the ullage reads colder") for s, p in consistency)
     if persistent_cold:

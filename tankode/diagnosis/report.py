@@ -215,7 +215,8 @@ def audit_markdown(d: Diagnosis) -> list[str]:
             L.append("Withheld: " + "; ".join(a.withheld) + ".")
         L += ["", "| single cause | estimate | chi2 |", "|---|---|---|"]
         units = {"heat": "W", "vapor_leak": "g/s lost", "liquid_leak": "g/s lost", "inflow_meter_bias": "relative",
-                 "wall_heat_capacity_error": "x stated C_w", "noncondensable_gas": "mol of inert gas"}
+                 "wall_heat_capacity_error": "x stated C_w", "noncondensable_gas": "mol of inert gas",
+                 "heat_at_stated_wall": "W at the stated C_w"}
         for h in sorted(a.hypotheses.values(), key=lambda h: h.chi2):
             scale = 1e3 if h.name.endswith("leak") else 1.0
             L.append(f"| {h.name} | {_est(h.estimate, scale)} {units[h.name]} | {h.chi2:.1f} |")
