@@ -244,6 +244,20 @@ def test_the_verdict_locates_unmetered_heat_only_where_the_dynamic_search_separa
     assert decide(inv, [_cand("pressure_sensor_bias")], th).name == "unmetered_heat"
 
 
+def test_the_verdict_words_heat_leaving_the_tank_and_a_wall_capacity_among_the_candidates():
+    """Heat leaving the tank has no place to enter (no candidates); a wall heat capacity among the
+    candidates is no place either, and the heat is the one at the stated capacity."""
+    th = Thresholds()
+    v = decide(Inventory((), unresolved="unmetered_heat", estimate=Estimate(-300.0, 20.0), unit="W"), [], th)
+    assert v.kind == "unresolved" and v.candidates == () and "leaving the tank" in v.sentence
+    cands = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor", "wall_heat_capacity_error")
+    v = decide(Inventory((), unresolved="unmetered_heat", estimate=Estimate(270.0, 36.0), unit="W", candidates=cands),
+               [], th)
+    assert v.candidates == cands and v.sentence.startswith(
+        "unmetered heat 270 +- 36 W, at the stated wall heat capacity, entering the wall, the liquid or the ullage, "
+        "or a wall heat capacity other than the stated one"), v.sentence
+
+
 def test_the_verdict_takes_the_audits_cause_and_names_dynamic_ones_only_when_nothing_is_unmetered():
     th = Thresholds()
     inv = Inventory((), cause="vapor_leak", estimate=Estimate(5e-4, 2e-5), unit="kg/s")

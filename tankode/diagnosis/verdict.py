@@ -244,9 +244,20 @@ def decide(inv: Inventory, ranking, thresholds) -> Verdict:
         else:
             notes.append("the dynamic search names none of the candidates (see the candidates' reasons)")
         what = "unmetered heat" if inv.unresolved == "unmetered_heat" else "unmetered mass"
-        where = ("entering " + _places(cands)) if inv.unresolved == "unmetered_heat" else ("carried by " + " or ".join(cands))
+        if inv.unresolved == "unmetered_heat":
+            heat = [c for c in cands if c != "wall_heat_capacity_error"]
+            leaving = inv.estimate is not None and inv.estimate.value < 0
+            parts = (["entering " + _places(heat)] if heat else
+                     ["leaving the tank (a metered heat load above the true one, or a loss the balances do not "
+                      "attribute)"] if leaving else [])
+            if "wall_heat_capacity_error" in cands:  # the heat is measured at the stated capacity (audit.py, step 6)
+                parts = ["at the stated wall heat capacity", *parts, "or a wall heat capacity other than the stated one"]
+            where = ", ".join(parts)
+        else:
+            where = "carried by " + " or ".join(cands)
         return Verdict("unresolved", inv.unresolved, inv.estimate, inv.unit, cands, "inventory audit",
-                       f"{what} {_fmt(inv.estimate, inv.unit)}, {where}: the data do not tell these apart",
+                       f"{what} {_fmt(inv.estimate, inv.unit)}, {where}"
+                       + (": the data do not tell these apart" if cands else ""),
                        tuple(notes))
     if inv.inert_Pa is not None:
         gas = [c for c in named if c.mechanism in ("noncondensable_gas", "pressure_sensor_bias")]
