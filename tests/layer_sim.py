@@ -127,6 +127,8 @@ min.
 
 Sensors: ``p_v`` (total pressure), ``T_v`` and ``T_l`` (mass averages of the ullage and
 liquid layers), ``T_w`` (capacity average of the wall), ``H_l`` (level from the liquid volume);
+with ``--sensors point`` the temperatures are probes instead (the middle ullage layer, the second
+liquid layer from the bottom, the wall band at mid-height);
 every 10 s, ``T_w`` every 30 s (empty cells in between); Gaussian noise
 ``--noise none|low|high`` (low: 300 Pa, 0.05 K, 1 mm; high: 2000 Pa, 0.2 K, 5 mm; ``none``
 writes exact readings with the low ``noise_std``).
@@ -188,6 +190,8 @@ ATM = 101325.0
 N_LIQ = 8
 N_VAP = 5
 N_WALL = 10
+# What the temperature sensors read: the layers' averages, or one probe per phase and the wall.
+SENSORS = ("average", "point")
 
 FLUIDS = ("ParaHydrogen", "Hydrogen", "Nitrogen", "Methane", "Oxygen")
 SHAPES = ("vertical_cylinder", "vertical_cylinder_elliptical_heads", "sphere", "horizontal_cylinder")
@@ -1300,18 +1304,30 @@ def _num(v: float) -> str:
 def simulate_run(scenario: str | Mapping[str, Any], mechanisms: Mapping[str, float] | None = None,
                  noise: str = "low", seed: int = 0, out_dir: str | pathlib.Path = ".", name: str | None = None,
                  fluid: str | None = None, duration_s: float | None = None,
-                 wall_capacity_unknown: bool = False) -> dict[str, pathlib.Path]:
-    """Simulate and write ``NAME.json``, ``NAME.csv`` and ``NAME.truth.json``; returns their paths."""
+                 wall_capacity_unknown: bool = False, sensors: str = "average") -> dict[str, pathlib.Path]:
+    """Simulate and write ``NAME.json``, ``NAME.csv`` and ``NAME.truth.json``; returns their paths.
+
+    ``sensors``: ``"average"`` (the mass or capacity averages of the layers and wall nodes) or
+    ``"point"`` (probes, as a real tank has them: ``T_v`` in the middle ullage layer, ``T_l`` in
+    the second liquid layer from the bottom, ``T_w`` on the wall band at mid-height, which is dry
+    or wetted as the level moves).
+    """
     if noise not in ("none", "low", "high"):
         raise ValueError(f"noise must be none, low or high, got {noise!r}")
+    if sensors not in SENSORS:
+        raise ValueError(f"sensors must be one of {', '.join(SENSORS)}, got {sensors!r}")
     res = simulate(scenario, mechanisms, fluid=fluid, duration_s=duration_s)
     sc, model, mech, obs, times = res["scenario"], res["model"], res["mechanisms"], res["obs"], res["times"]
+    # What the sensors read (the truth file keeps the layers' averages and the layers themselves).
+    read = obs if sensors == "average" else [
+        {**o, "T_v": o["T_v_layers"][N_VAP // 2], "T_l": o["T_l_layers"][1], "T_w": o["T_w_nodes"][N_WALL // 2]}
+        for o in obs]
     std = NOISE_LEVELS["low" if noise == "none" else noise]
     rng = np.random.default_rng(seed)
     bp, bT = mech.get("pressure_sensor_bias_Pa", 0.0), mech.get("temperature_sensor_bias_K", 0.0)
-    truth_ch = {"p_v_Pa": np.array([o["p"] for o in obs]) + bp, "T_v_K": np.array([o["T_v"] for o in obs]),
-                "T_l_K": np.array([o["T_l"] for o in obs]) + bT, "T_w_K": np.array([o["T_w"] for o in obs]),
-                "H_l_m": np.array([o["level"] for o in obs])}
+    truth_ch = {"p_v_Pa": np.array([o["p"] for o in read]) + bp, "T_v_K": np.array([o["T_v"] for o in read]),
+                "T_l_K": np.array([o["T_l"] for o in read]) + bT, "T_w_K": np.array([o["T_w"] for o in read]),
+                "H_l_m": np.array([o["level"] for o in read])}
     meas: dict[str, dict[float, float]] = {}
     for ch, key in zip(OBS_COLUMNS, NOISE_KEYS):
         dt = DT_SAMPLE_WALL if ch == "T_w_K" else DT_SAMPLE
@@ -1345,8 +1361,8 @@ def simulate_run(scenario: str | Mapping[str, Any], mechanisms: Mapping[str, flo
     meta = {"name": run_name, "fluid": sc["fluid"],
             "source": f"{SIMULATOR}: independent stratified (layered) tank simulator, CoolProp, scenario {sc['name']}",
             "tank": tank,
-            "initial": {"p_v_Pa": o0["p"] + bp, "T_v_K": o0["T_v"], "T_l_K": o0["T_l"] + bT, "T_w_K": o0["T_w"],
-                        "fill_ratio": o0["fill"]},
+            "initial": {"p_v_Pa": o0["p"] + bp, "T_v_K": read[0]["T_v"], "T_l_K": read[0]["T_l"] + bT,
+                        "T_w_K": read[0]["T_w"], "fill_ratio": o0["fill"]},
             "noise_std": {k: std[k] for k in NOISE_KEYS}, "duration_s": res["duration_s"],
             "timeseries": csv_path.name}
     json_path = out / f"{run_name}.json"
@@ -1364,7 +1380,7 @@ def simulate_run(scenario: str | Mapping[str, Any], mechanisms: Mapping[str, flo
                 "T_wall_nodes_K": o["T_w_nodes"]}
 
     truth = {"simulator": SIMULATOR, "scenario": sc, "mechanisms": {k: mech.get(k, 0.0) for k in MECHANISMS},
-             "noise": noise, "seed": seed,
+             "noise": noise, "seed": seed, "sensors": sensors,
              "layers": {"liquid": N_LIQ, "ullage": N_VAP, "wall_nodes": N_WALL},
              "wall_heat_capacity_true_J_per_K": model.C_w, "wall_heat_capacity_metadata_J_per_K": model.C_meta,
              "wall_heat_capacity_written": not wall_capacity_unknown,
@@ -1406,6 +1422,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--name", help="run name (default layer_SCENARIO)")
     ap.add_argument("--duration", type=float, help="duration [s] (a multiple of 10 s)")
     ap.add_argument("--wall-capacity-unknown", action="store_true", help="write null for the wall heat capacity")
+    ap.add_argument("--sensors", default="average", choices=SENSORS,
+                    help="temperatures as layer averages (average) or as probes in one layer each (point)")
     args = ap.parse_args(argv)
     if args.list:
         for k, (desc, _) in NAMED_SCENARIOS.items():
@@ -1418,7 +1436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         paths = simulate_run(args.scenario, dict(args.mechanism), noise=args.noise, seed=args.seed,
                              out_dir=args.out, name=args.name, fluid=args.fluid, duration_s=args.duration,
-                             wall_capacity_unknown=args.wall_capacity_unknown)
+                             wall_capacity_unknown=args.wall_capacity_unknown, sensors=args.sensors)
     except (ValueError, SimulationError) as e:
         print(f"layer_sim: error: {e}", file=sys.stderr)
         return 2

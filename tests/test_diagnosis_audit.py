@@ -208,6 +208,18 @@ def test_a_wall_capacity_that_a_steady_heat_at_the_stated_capacity_matches_is_no
     assert found.name == "wall_heat_capacity_error" and chosen == "wall_heat_capacity_error"
 
 
+def test_leaks_told_apart_from_heat_leaving_by_neither_balance_are_stated_in_the_leaks_unit():
+    """Heat leaving the tank is best (8 standard errors) and a vapour and a liquid leak explain the
+    balances within ``chi2_separation`` with the mass unresolved: a mass loss at the best leak's
+    rate, its fit recorded for the strict check."""
+    config = AuditConfig()
+    h = _hyps(heat=(26.4, -518.0, 64.0), vapor_leak=(27.5, 5.4e-4, 6.7e-5), liquid_leak=(32.1, 9.7e-4, 1.2e-4))
+    (found,), chosen = _name(Estimate(-1e-4, 3.8e-4), Estimate(-472.0, 185.0), h, 26.0, None, [], config, True)
+    assert (found.name, found.unit, found.candidates, found.fit) == ("unmetered_mass", "kg/s",
+                                                                     ("vapor_leak", "liquid_leak"), "vapor_leak")
+    assert found.estimate == Estimate(-5.4e-4, 6.7e-5) and chosen == ""
+
+
 def test_unmetered_heat_is_named_with_the_places_it_may_enter_and_heat_leaving_with_none():
     config = AuditConfig()
     h = _hyps(heat=(20.0, 400.0, 15.0), vapor_leak=(500.0, -8e-4, 3e-5), liquid_leak=(700.0, -1e-3, 5e-5))

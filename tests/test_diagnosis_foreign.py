@@ -194,6 +194,22 @@ def test_the_audit_reads_other_fluids_from_a_third_simulator(tmp_path, scenario,
     _assert_audit_finds(read_run(paths["json"]), finding, value)
 
 
+def test_a_leak_whose_energy_the_balances_resolve_but_not_its_mass_is_stated_as_a_mass_loss(tmp_path):
+    """cryo_sim's random_72 (a 48 m3 hydrogen cylinder, fills, a vent, pressurisation) with a 0.5 g/s
+    vapour leak: the level does not resolve the mass (0.38 g/s standard error), the energy does, and
+    the leak, a liquid leak and heat leaving the tank explain it alike. Stated before as 'unmetered
+    heat -472 W' with the two leaks as candidates (a rate in the wrong unit); now a mass loss with
+    the best-fitting leak's rate and every reading in the sentence."""
+    paths = cryo_sim.simulate_run("random_72", {"vapor_leak_kg_s": 5e-4}, noise="low", seed=0, out_dir=tmp_path,
+                                  name="leak")
+    a = audit_run(read_run(paths["json"]))
+    assert [(f.name, f.candidates) for f in a.findings] == [("unmetered_mass", ("vapor_leak", "liquid_leak"))], \
+        a.summary()
+    (f,) = a.findings
+    assert f.unit == "kg/s" and -f.estimate.value == pytest.approx(5e-4, rel=0.25)  # a loss: negative, as mass_kg_s
+    assert "a vapour leak of" in f.sentence and "a liquid leak of" in f.sentence and "heat leaving" in f.sentence
+
+
 @pytest.mark.parametrize("scenario,mechanism,value,finding", [
     ("random_2", None, 0.0, None),  # without the property nuisances: an inflow bias of 1.7 %
     ("random_3", None, 0.0, None),  # 0.35 g/s of unmetered mass: the liquid's compressibility

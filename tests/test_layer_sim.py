@@ -112,6 +112,24 @@ def test_written_run_is_read_by_tankode(tmp_path):
     assert json.loads(paths["json"].read_text())["tank"]["wall_heat_capacity_J_per_K"] is None
 
 
+def test_point_sensors_read_one_layer_each(tmp_path):
+    """``sensors="point"``: the written temperatures are the middle ullage layer's, the second liquid
+    layer's and the mid-height wall band's (the truth's layers), not their averages."""
+    import csv
+
+    paths = L.simulate_run("lh2_upright", noise="none", out_dir=tmp_path, name="pt", duration_s=600.0, sensors="point")
+    truth = json.loads(paths["truth"].read_text())
+    assert truth["sensors"] == "point"
+    last = truth["final_true"]
+    row = list(csv.DictReader(paths["csv"].open()))[-1]
+    assert float(row["T_v_K"]) == pytest.approx(last["T_ullage_layers_K"][L.N_VAP // 2], abs=1e-9)
+    assert float(row["T_l_K"]) == pytest.approx(last["T_liquid_layers_K"][1], abs=1e-9)
+    assert float(row["T_w_K"]) == pytest.approx(last["T_wall_nodes_K"][L.N_WALL // 2], abs=1e-9)
+    assert float(row["T_v_K"]) != pytest.approx(last["T_v_K"], abs=1e-6)  # stratified: the probe is not the mean
+    with pytest.raises(ValueError, match="sensors"):
+        L.simulate_run("lh2_upright", out_dir=tmp_path, sensors="rake")
+
+
 @pytest.mark.parametrize("shape", L.SHAPES)
 def test_shapes_level_volume(shape):
     tank = L._tank_of_volume(shape, 10.0, 1.3)

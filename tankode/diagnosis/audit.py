@@ -82,7 +82,10 @@ Detection*, 2000). Per run:
    (its correction freed from the prior); where the wall warms or cools at a steady rate, a
    constant unmetered heat with the stated capacity held explains the balances as well (the
    heat's own fit spends the wall's prior on it and reads ~0), and the two are listed together,
-   the heat as measured at the stated capacity; a liquid temperature offset ``z_name`` standard errors
+   the heat as measured at the stated capacity. Leaks that the energy balance resolves where the
+   mass balance does not (a large tank's level), rivalled only by each other and by heat leaving
+   the tank, are stated as an unmetered mass loss at the best-fitting leak's rate, with every
+   rival's reading; a liquid temperature offset ``z_name`` standard errors
    from zero under the chosen explanation is named as a biased liquid temperature sensor, unless
    the liquid it implies would sit ``saturation_margin_K`` or more above saturation (median).
 
@@ -292,7 +295,9 @@ class InventoryFinding:
     ``inflow_meter_bias``, ``unmetered_mass`` (candidates: the hypotheses not told apart),
     ``wall_heat_capacity_error``, ``temperature_sensor_bias`` (the liquid temperature reading's
     offset: a biased sensor, or one sitting in a layer unlike the bulk),
-    ``inert_gas_or_sensor_bias`` (a persistently cold ullage reading).
+    ``inert_gas_or_sensor_bias`` (a persistently cold ullage reading). ``fit``: the fit its
+    estimate comes from (a hypothesis of ``RunAudit.hypotheses``, ``"mass"`` for the free fit's
+    mass rate; ``""`` where the balances do not rate it), which the strict check reads too.
     """
 
     name: str
@@ -300,6 +305,7 @@ class InventoryFinding:
     unit: str
     candidates: tuple[str, ...]  # mechanism ids the finding is consistent with
     sentence: str
+    fit: str = ""
 
     def to_json(self) -> dict:
         return {"name": self.name, "estimate": self.estimate.to_json() if self.estimate else None, "unit": self.unit,
@@ -906,22 +912,18 @@ def _resting(explanation, chosen: str) -> tuple["_Solution", Estimate]:
 
 
 def _strict_z(strict, chosen: str):
-    """``name -> z`` of a finding in the strict explanation (None for what the balances do not rate)."""
+    """``finding -> z`` in the strict explanation, from the fit the finding's estimate comes from
+    (``InventoryFinding.fit``; None for what the balances do not rate)."""
     general, _, hyps = strict
     offset = _resting(strict, chosen)[1]
 
     def z(f: InventoryFinding) -> float | None:
-        name = f.name
-        if name == "unmetered_mass":
+        if f.name == "temperature_sensor_bias":
+            return offset.z
+        if f.fit == "mass":
             value, std = general.rate("mass", general.birge)
             return value / std if std > 0 else 0.0
-        if name == "unmetered_heat":
-            if "wall_heat_capacity_error" in f.candidates and HEAT_AT_STATED_WALL in hyps:
-                return hyps[HEAT_AT_STATED_WALL].z
-            return hyps["heat"].z
-        if name == "temperature_sensor_bias":
-            return offset.z
-        return hyps[name].z if name in hyps else None
+        return hyps[f.fit].z if f.fit in hyps else None
     return z
 
 
@@ -1149,7 +1151,7 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
                 f"unmetered heat {e.value:.3g} +- {e.std:.2g} W entering the tank at the stated wall heat capacity, or "
                 f"a wall that stores heat as {w.value:.3g} +- {w.std:.2g} times the stated heat capacity: the wall "
                 f"changes temperature at a steady rate, so the balances do not tell a heat leak (into the wall, "
-                f"the liquid or the ullage) from a wrong wall heat capacity{note}"))
+                f"the liquid or the ullage) from a wrong wall heat capacity{note}", HEAT_AT_STATED_WALL))
         elif significant and explains and not rivals:
             out.append(_single(best, note, ullage))
             chosen = best.name
@@ -1166,15 +1168,31 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
                     "unmetered_mass", mass, "kg/s", cands,
                     f"unmetered mass {kind} of {abs(mass.value):.3g} +- {mass.std:.2g} kg/s with unmetered heat "
                     f"{heat.value:.3g} +- {heat.std:.2g} W beside it; the balances do not tell which of "
-                    f"{listed} carries it"))
+                    f"{listed} carries it", "mass"))
+            elif (leaks := [hyps[c] for c in cands if c in ("vapor_leak", "liquid_leak")]) and not any(
+                    c in HEAT_CANDIDATES or c == "wall_heat_capacity_error" for c in cands):
+                # Leaks (and heat leaving) whose energy the balances resolve where the mass balance is too
+                # weak to: the loss is stated in the leaks' unit, the best-fitting one's rate as the estimate.
+                first = min(leaks, key=lambda h: h.chi2)
+                e = Estimate(-first.estimate.value, first.estimate.std)
+                each = [f"a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak of {h.estimate.value:.3g} +- "
+                        f"{h.estimate.std:.2g} kg/s" for h in sorted(leaks, key=lambda h: h.chi2)]
+                if "heat" in names:
+                    each.append(f"{-hyps['heat'].estimate.value:.3g} +- {hyps['heat'].estimate.std:.2g} W of heat "
+                                "leaving the tank (a metered heat load above the true one)")
+                out.append(InventoryFinding(
+                    "unmetered_mass", e, "kg/s", cands,
+                    f"unmetered mass loss: {', '.join(each[:-1])} or {each[-1]}, which the balances do not tell "
+                    "apart (the energy they carry is resolved, the mass balance alone is not)"
+                    if len(each) > 1 else f"unmetered mass loss: {each[0]}", first.name))
             else:
                 # Where the wall's heat capacity is among the candidates, the heat is the one at the stated capacity.
-                e, at = ((stated.estimate, " at the stated wall heat capacity")
-                         if "wall_heat_capacity_error" in cands and stated is not None else (heat, ""))
+                at_stated = "wall_heat_capacity_error" in cands and stated is not None
+                e, at = (stated.estimate, " at the stated wall heat capacity") if at_stated else (heat, "")
                 out.append(InventoryFinding(
                     "unmetered_heat", e, "W", cands,
                     f"unmetered heat {e.value:.3g} +- {e.std:.2g} W{at}{note}; the balances do not tell "
-                    f"{listed} apart"))
+                    f"{listed} apart", HEAT_AT_STATED_WALL if at_stated else "heat"))
     persistent_cold = any(p and s.startswith("the ullage reads colder") for s, p in consistency)
     if persistent_cold:
         out.append(InventoryFinding("inert_gas_or_sensor_bias", Estimate(inert, float("nan")), "Pa",
@@ -1200,27 +1218,27 @@ def _single(h: Hypothesis, note: str = "", ullage: _Ullage | None = None) -> Inv
         return InventoryFinding(h.name, e, "mol", (h.name,),
                                 f"{e.value:.3g} +- {e.std:.2g} mol of inert gas (helium) in the ullage{share}: the "
                                 "vents meter more mass than the sensors' inventory loses, as a heavier gas counted as "
-                                "the fluid's vapour leaves with them")
+                                "the fluid's vapour leaves with them", h.name)
     if h.name == "wall_heat_capacity_error":
         return InventoryFinding(h.name, e, "x stated", (h.name,),
                                 f"the wall stores heat as {e.value:.3g} +- {e.std:.2g} times the stated heat capacity: "
-                                "the unmetered energy follows the wall temperature")
+                                "the unmetered energy follows the wall temperature", h.name)
     if h.name == "heat":
         if e.value > 0:
             return InventoryFinding("unmetered_heat", e, "W", HEAT_CANDIDATES,
                                     f"unmetered heat {e.value:.3g} +- {e.std:.2g} W entering the tank: through the "
-                                    f"wall, the liquid or the ullage, which the whole-tank balance cannot tell apart{note}")
+                                    f"wall, the liquid or the ullage, which the whole-tank balance cannot tell apart{note}", h.name)
         return InventoryFinding("unmetered_heat", e, "W", (),
                                 f"unmetered heat {e.value:.3g} +- {e.std:.2g} W leaving the tank: a metered heat load "
-                                f"above the true one, or a loss the balances do not attribute{note}")
+                                f"above the true one, or a loss the balances do not attribute{note}", h.name)
     if h.name == "inflow_meter_bias":
         return InventoryFinding("inflow_meter_bias", e, "relative", ("inflow_meter_bias",),
                                 f"the true inflows are {1 + e.value:.3g} (+- {e.std:.2g}) times the metered ones: the "
-                                "unmetered mass and energy follow the metered inflow")
+                                "unmetered mass and energy follow the metered inflow", h.name)
     stream = "ullage" if h.name == "vapor_leak" else "liquid"
     return InventoryFinding(h.name, e, "kg/s", (h.name,),
                             f"unmetered mass loss of {e.value:.3g} +- {e.std:.2g} kg/s carrying the {stream}'s "
-                            f"enthalpy: a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak")
+                            f"enthalpy: a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak", h.name)
 
 
 __all__ = ["AuditConfig", "Estimate", "Hypothesis", "PhaseAudit", "InventoryFinding", "RunAudit", "audit_run",

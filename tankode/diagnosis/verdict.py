@@ -245,11 +245,14 @@ def decide(inv: Inventory, ranking, thresholds) -> Verdict:
             notes.append("the dynamic search names none of the candidates (see the candidates' reasons)")
         what = "unmetered heat" if inv.unresolved == "unmetered_heat" else "unmetered mass"
         if inv.unresolved == "unmetered_heat":
-            heat = [c for c in cands if c != "wall_heat_capacity_error"]
+            heat = [c for c in cands if c in HEAT_CANDIDATES]
+            others = [c for c in cands if c not in HEAT_CANDIDATES and c != "wall_heat_capacity_error"]
             leaving = inv.estimate is not None and inv.estimate.value < 0
             parts = (["entering " + _places(heat)] if heat else
                      ["leaving the tank (a metered heat load above the true one, or a loss the balances do not "
                       "attribute)"] if leaving else [])
+            if others:  # rival single causes in their own units (a leak, a meter bias)
+                parts.append("or " + " or ".join(others))
             if "wall_heat_capacity_error" in cands:  # the heat is measured at the stated capacity (audit.py, step 6)
                 parts = ["at the stated wall heat capacity", *parts, "or a wall heat capacity other than the stated one"]
             where = ", ".join(parts)
