@@ -256,6 +256,23 @@ def test_the_audit_reads_a_stratified_tank_from_a_fourth_simulator(tmp_path, mec
     _assert_audit_finds(read_run(paths["json"]), finding, value)
 
 
+@pytest.mark.parametrize("mechanism,value", [(None, 0.0), ("vapor_leak_kg_s", 1e-3)], ids=str)
+def test_the_audit_reads_a_stratified_tank_through_probes(tmp_path, mechanism, value):
+    """layer_sim's 15 m3 upright tank read by probes (one ullage layer, one liquid layer, one wall
+    band; ``sensors="point"``), as a real tank is: the null names nothing; a 1 g/s vapour leak is
+    a mass loss that a liquid leak explains too (the vapour leak's fit is best): both are listed,
+    at the vapour leak's rate. The free mass balance alone reads 1.35 g/s there."""
+    paths = layer_sim.simulate_run("lh2_upright", {mechanism: value} if mechanism else None, noise="low", seed=0,
+                                   out_dir=tmp_path, name=f"pt_{mechanism}", sensors="point")
+    a = audit_run(read_run(paths["json"]))
+    if mechanism is None:
+        assert a.findings == (), a.summary()
+        return
+    assert [(f.name, f.candidates) for f in a.findings] == [("unmetered_mass", ("vapor_leak", "liquid_leak"))], \
+        a.summary()
+    assert a.findings[0].fit == "vapor_leak" and -a.findings[0].estimate.value == pytest.approx(value, rel=0.25)
+
+
 def test_a_stratified_liquid_read_by_its_mass_averaged_temperature_leaves_the_inventory_as_metered(nodal):
     a = audit_run(nodal("upright_13m3", "mcadams", liquid_layers=4))
     assert a.findings == (), a.summary()

@@ -82,10 +82,10 @@ Detection*, 2000). Per run:
    (its correction freed from the prior); where the wall warms or cools at a steady rate, a
    constant unmetered heat with the stated capacity held explains the balances as well (the
    heat's own fit spends the wall's prior on it and reads ~0), and the two are listed together,
-   the heat as measured at the stated capacity. Leaks that the energy balance resolves where the
-   mass balance does not (a large tank's level), rivalled only by each other and by heat leaving
-   the tank, are stated as an unmetered mass loss at the best-fitting leak's rate, with every
-   rival's reading; a liquid temperature offset ``z_name`` standard errors
+   the heat as measured at the stated capacity. Where a leak explains best but has rivals, or
+   leaks are rivalled only by each other and by heat leaving the tank (the energy they carry
+   resolved, a large tank's level too noisy for the mass), the finding is an unmetered mass loss
+   at the best-fitting leak's rate, with every rival's reading; a liquid temperature offset ``z_name`` standard errors
    from zero under the chosen explanation is named as a biased liquid temperature sensor, unless
    the liquid it implies would sit ``saturation_margin_K`` or more above saturation (median).
 
@@ -1162,29 +1162,27 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
             names = [best.name] + [h.name for h in rivals] if explains else [h.name for h in admissible]
             cands = tuple(c for nme in names for c in (_heat_candidates(heat) if nme == "heat" else (nme,)))
             listed = ", ".join(cands) or "no heat leak (heat leaves the tank)"
-            if free_mass:
+            leaks = [hyps[n] for n in names if n in ("vapor_leak", "liquid_leak")]
+            # A leak that explains the balances best, or leaks rivalled only by each other and by heat
+            # leaving the tank (the energy they carry resolved, the mass balance alone too weak to
+            # tell them apart): the loss in the leaks' unit, the best-fitting leak's rate as the estimate.
+            leak_first = explains and best.name in ("vapor_leak", "liquid_leak")
+            only_leaks = leaks and not free_mass and not any(
+                c in HEAT_CANDIDATES or c == "wall_heat_capacity_error" for c in cands)
+            if leak_first or only_leaks:
+                first = min(leaks, key=lambda h: h.chi2)
+                readings = [_reading(hyps[n]) for n in sorted(names, key=lambda n: hyps[n].chi2)]
+                out.append(InventoryFinding(
+                    "unmetered_mass", Estimate(-first.estimate.value, first.estimate.std), "kg/s", cands,
+                    f"unmetered mass loss: {', '.join(readings[:-1])} or {readings[-1]}, which the balances do not "
+                    f"tell apart{note}", first.name))
+            elif free_mass:
                 kind = "loss" if mass.value < 0 else "gain"
                 out.append(InventoryFinding(
                     "unmetered_mass", mass, "kg/s", cands,
                     f"unmetered mass {kind} of {abs(mass.value):.3g} +- {mass.std:.2g} kg/s with unmetered heat "
                     f"{heat.value:.3g} +- {heat.std:.2g} W beside it; the balances do not tell which of "
                     f"{listed} carries it", "mass"))
-            elif (leaks := [hyps[c] for c in cands if c in ("vapor_leak", "liquid_leak")]) and not any(
-                    c in HEAT_CANDIDATES or c == "wall_heat_capacity_error" for c in cands):
-                # Leaks (and heat leaving) whose energy the balances resolve where the mass balance is too
-                # weak to: the loss is stated in the leaks' unit, the best-fitting one's rate as the estimate.
-                first = min(leaks, key=lambda h: h.chi2)
-                e = Estimate(-first.estimate.value, first.estimate.std)
-                each = [f"a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak of {h.estimate.value:.3g} +- "
-                        f"{h.estimate.std:.2g} kg/s" for h in sorted(leaks, key=lambda h: h.chi2)]
-                if "heat" in names:
-                    each.append(f"{-hyps['heat'].estimate.value:.3g} +- {hyps['heat'].estimate.std:.2g} W of heat "
-                                "leaving the tank (a metered heat load above the true one)")
-                out.append(InventoryFinding(
-                    "unmetered_mass", e, "kg/s", cands,
-                    f"unmetered mass loss: {', '.join(each[:-1])} or {each[-1]}, which the balances do not tell "
-                    "apart (the energy they carry is resolved, the mass balance alone is not)"
-                    if len(each) > 1 else f"unmetered mass loss: {each[0]}", first.name))
             else:
                 # Where the wall's heat capacity is among the candidates, the heat is the one at the stated capacity.
                 at_stated = "wall_heat_capacity_error" in cands and stated is not None
@@ -1206,6 +1204,22 @@ def _name(mass, heat, hyps, chi2_general, inert, consistency, config, mass_level
 def _heat_candidates(heat: Estimate) -> tuple[str, ...]:
     """Where unmetered heat may enter; none for heat leaving the tank (heat leaks are inflows)."""
     return HEAT_CANDIDATES if heat.value > 0 else ()
+
+
+def _reading(h: Hypothesis) -> str:
+    """One hypothesis's reading in words, for a finding that lists rivals."""
+    e = h.estimate
+    if h.name in ("vapor_leak", "liquid_leak"):
+        return f"a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak of {e.value:.3g} +- {e.std:.2g} kg/s"
+    if h.name == "heat":
+        where = ("entering the tank" if e.value > 0 else
+                 "leaving the tank (a metered heat load above the true one)")
+        return f"{abs(e.value):.3g} +- {e.std:.2g} W of heat {where}"
+    if h.name == "inflow_meter_bias":
+        return f"inflows {1 + e.value:.3g} (+- {e.std:.2g}) times the metered ones"
+    if h.name == "wall_heat_capacity_error":
+        return f"a wall storing {e.value:.3g} +- {e.std:.2g} times the stated heat capacity"
+    return f"{e.value:.3g} +- {e.std:.2g} mol of inert gas"
 
 
 def _single(h: Hypothesis, note: str = "", ullage: _Ullage | None = None) -> InventoryFinding:
