@@ -128,7 +128,8 @@ min.
 Sensors: ``p_v`` (total pressure), ``T_v`` and ``T_l`` (mass averages of the ullage and
 liquid layers), ``T_w`` (capacity average of the wall), ``H_l`` (level from the liquid volume);
 with ``--sensors point`` the temperatures are probes instead (the middle ullage layer, the second
-liquid layer from the bottom, the wall band at mid-height);
+liquid layer from the bottom, the wall band at mid-height: outside the run format, which defines
+mass averages, as a real tank's single probes are);
 every 10 s, ``T_w`` every 30 s (empty cells in between); Gaussian noise
 ``--noise none|low|high`` (low: 300 Pa, 0.05 K, 1 mm; high: 2000 Pa, 0.2 K, 5 mm; ``none``
 writes exact readings with the low ``noise_std``).
