@@ -70,8 +70,9 @@ Detection*, 2000). Per run:
    vented, with a level sensor, and where the saturation test does not rule a gas out, and is
    admissible only positive and with a partial pressure at the start, ``n R T_v / V_v``, within
    three standard errors of ``p - p_sat(T_l)``. The vented share is taken on the inventory's
-   mass, which counts the helium at the fluid's molar mass: the amount is low by about
-   ``1 / (1 + x (M_He / M_f - 1))`` at helium mole fraction ``x``. The best
+   mass, which counts the helium at the fluid's molar mass: the fitted amount is low by about
+   ``1 / (1 + x (M_He / M_f - 1))`` at helium mole fraction ``x``, which the estimate corrects
+   at the start's ullage (``_inert_amount``). The best
    hypothesis is named when its rate is ``z_name`` standard errors from zero (``z_name_properties``
    where the property model's uncertainty is allowed for, step 4, and then only if the fit with
    the reference's properties alone also puts it ``z_name`` out), it explains both
@@ -846,10 +847,13 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     # Two explanations: with the reference's properties (strict) and with the property model's
     # uncertainty allowed (robust, where any property prior is on). The robust one reports and
     # names, at z_name_properties; what it names must also stand z_name out in the strict one.
-    strict = _explain(_RunFit(datas, has_wall, wall_capacity_assumed, config, properties=False), mass_level, excluded)
+    ullage = _Ullage(ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
+    heavier = M_INERT_KG_PER_MOL / thermo.molar_mass_kg_per_mol
+    strict = _inert_amount(_explain(_RunFit(datas, has_wall, wall_capacity_assumed, config, properties=False),
+                                    mass_level, excluded), ullage, heavier)
     fit = _RunFit(datas, has_wall, wall_capacity_assumed, config, properties=True)
     robust = fit.has_properties
-    general, sols, hyps = _explain(fit, mass_level, excluded) if robust else strict
+    general, sols, hyps = _inert_amount(_explain(fit, mass_level, excluded), ullage, heavier) if robust else strict
     B = general.birge
     mass = Estimate(*general.rate("mass")) if mass_level else None
     heat = Estimate(*general.rate("heat"))
@@ -857,7 +861,6 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
     w = np.array([1 / e.std**2 for e in per])
     v = np.array([e.value for e in per])
     chi2_between = float((w * (v - (w * v).sum() / w.sum()) ** 2).sum())
-    ullage = _Ullage(ini.p_v_Pa, ini.T_v_K, (1.0 - ini.fill_ratio) * V_tank, ini.p_v_Pa - thermo.p_sat(ini.T_l_K))
     naming = dataclasses.replace(config, z_name=config.z_name_properties) if robust else config
     findings, chosen = _name(mass, heat, hyps, general.chi2 / B**2, inert, consistency, naming, mass_level, ullage)
     # The nuisances as the explanation the findings rest on estimates them.
@@ -952,6 +955,24 @@ def _explain(fit: "_RunFit", mass_level: bool, excluded: str):
         hyps[HEAT_AT_STATED_WALL] = Hypothesis(HEAT_AT_STATED_WALL, s.chi2 / B**2, Estimate(value, std),
                                                value / std if std > 0 else 0.0)
     return general, sols, hyps
+
+
+def _inert_amount(explanation, ullage: "_Ullage", heavier: float):
+    """``explanation`` with the inert gas's amount corrected for the linearisation of its vent
+    signature (module docstring, step 6): the vented share is taken on the inventory's mass, which
+    counts the gas at the fluid's molar mass, so the fitted amount ``n_lin`` is ``n / (1 + x (r -
+    1))`` at mole fraction ``x = n R T_v / (V_v p)`` and molar-mass ratio ``r`` (``heavier``), i.e.
+    ``n = n_lin / (1 - n_lin c)`` with ``c = R T_v (r - 1) / (V_v p)``, at the start's ullage. The
+    correction is capped at a factor of two (``n_lin c <= 0.5``); the relative standard error, z
+    and chi2 are the fit's."""
+    general, sols, hyps = explanation
+    h = hyps.get("noncondensable_gas")
+    if h is None or h.estimate.value <= 0:
+        return explanation
+    c = R_J_PER_MOLK * ullage.T_v_K * (heavier - 1.0) / (ullage.V_v_m3 * ullage.p_Pa)
+    k = max(1.0 - h.estimate.value * c, 0.5)
+    e = Estimate(h.estimate.value / k, h.estimate.std / k)
+    return general, sols, {**hyps, "noncondensable_gas": Hypothesis(h.name, h.chi2, e, h.z)}
 
 
 def _energy_only(d: _PhaseData) -> _PhaseData:
