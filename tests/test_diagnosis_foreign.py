@@ -243,6 +243,19 @@ def test_the_audit_reads_a_fifth_simulators_engineering_properties(tmp_path, sce
         assert withheld and all(s.endswith("not named") for s in withheld), withheld
 
 
+def test_a_leak_named_beside_a_thermometer_bias_keeps_its_rate(tmp_path):
+    """eng_sim's random_72, whose liquid thermometer reads 0.5 K off the liquid's energy under its
+    engineering properties, with a 0.5 g/s vapour leak: the audit names both, and the verdict's
+    unmetered mass is the leak's rate (it was 'not measured')."""
+    from tankode.diagnosis.verdict import inventory
+
+    paths = eng_sim.simulate_run("random_72", {"vapor_leak_kg_s": 5e-4}, noise="low", seed=0, out_dir=tmp_path,
+                                 name="leak")
+    inv = inventory([audit_run(read_run(paths["json"]))])
+    assert inv.unresolved == "unmetered_mass" and set(inv.candidates) == {"temperature_sensor_bias", "vapor_leak"}
+    assert -inv.estimate.value == pytest.approx(5e-4, rel=0.25)
+
+
 @pytest.mark.parametrize("mechanism,value,finding", [
     (None, 0.0, None),
     ("liquid_leak_kg_s", 2e-3, "liquid_leak"),

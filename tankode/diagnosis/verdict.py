@@ -175,6 +175,9 @@ def inventory(audits: list[RunAudit]) -> Inventory:
         masses = [f for f in groups if f.name == "unmetered_mass"]
         name = "unmetered_mass" if masses or any(s in singles for s in ("vapor_leak", "liquid_leak")) else "unmetered_heat"
         est = _combine([f.estimate for f in groups if f.name == name and f.estimate is not None])
+        if est is None and name == "unmetered_mass":  # leaks named beside another single (a thermometer's bias)
+            est = _combine([Estimate(-f.estimate.value, f.estimate.std) for a in audits for f in a.findings
+                            if f.name in ("vapor_leak", "liquid_leak")])
         return Inventory(audits, None, est, "kg/s" if name == "unmetered_mass" else "W", name, cands, inert_Pa, sentences)
     return base
 
