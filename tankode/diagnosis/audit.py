@@ -86,9 +86,10 @@ Detection*, 2000). Per run:
    the heat as measured at the stated capacity. Where a leak explains best but has rivals, or
    leaks are rivalled only by each other and by heat leaving the tank (the energy they carry
    resolved, a large tank's level too noisy for the mass), the finding is an unmetered mass loss
-   at the best-fitting leak's rate, with every rival's reading; a liquid temperature offset ``z_name`` standard errors
-   from zero under the chosen explanation is named as a biased liquid temperature sensor, unless
-   the liquid it implies would sit ``saturation_margin_K`` or more above saturation (median).
+   at the best-fitting leak's rate, with every rival's reading; a liquid temperature offset
+   ``z_name`` standard errors from zero under the chosen explanation is named as a biased liquid
+   temperature sensor, unless the liquid it implies would sit ``saturation_margin_K`` or more
+   above saturation (median).
 
 Without a level sensor the mass balance is not observable: the liquid volume is then taken from
 the metered mass (no leak assumed) and only the energy balance is audited. Without a wall
@@ -1262,7 +1263,8 @@ def _single(h: Hypothesis, note: str = "", ullage: _Ullage | None = None) -> Inv
         if e.value > 0:
             return InventoryFinding("unmetered_heat", e, "W", HEAT_CANDIDATES,
                                     f"unmetered heat {e.value:.3g} +- {e.std:.2g} W entering the tank: through the "
-                                    f"wall, the liquid or the ullage, which the whole-tank balance cannot tell apart{note}", h.name)
+                                    f"wall, the liquid or the ullage, which the whole-tank balance cannot tell "
+                                    f"apart{note}", h.name)
         return InventoryFinding("unmetered_heat", e, "W", (),
                                 f"unmetered heat {e.value:.3g} +- {e.std:.2g} W leaving the tank: a metered heat load "
                                 f"above the true one, or a loss the balances do not attribute{note}", h.name)
