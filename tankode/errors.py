@@ -54,4 +54,9 @@ class StateLeftDomain(SimulationError):
     """A phase's state left the property surrogate's fitted domain (a wider domain may hold it)."""
 
 
-__all__ = ["SimulationError", "ImpossibleState", "StateLeftDomain"]
+class BeyondPropertyDomain(ValueError):
+    """A run's measured or initial states lie beyond every property domain tankode fits for its
+    fluid (``tankode.properties.surrogate_covering``): the model cannot simulate it."""
+
+
+__all__ = ["SimulationError", "ImpossibleState", "StateLeftDomain", "BeyondPropertyDomain"]

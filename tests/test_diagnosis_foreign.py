@@ -352,6 +352,17 @@ def test_a_model_that_leaves_the_default_tier_is_searched_again_on_the_wide_one_
     assert d.split == "none (the dynamic search stopped)"
 
 
+def test_a_run_beyond_every_property_domain_is_diagnosed_by_the_audit_alone(nodal):
+    """nodal_sim's random_440 with a 1 g/s vapour leak: the 1.4 m3 tank's pressure falls to 17 kPa,
+    below the widest hydrogen surrogate (32 kPa), so the model cannot simulate it. The audit
+    reads CoolProp and names the leak; the dynamic search says why it did not start (this was a
+    one-line error and no diagnosis)."""
+    d = diagnose([nodal("random_440", "mcadams", "vapor_leak_kg_s", 1e-3)])
+    assert (d.verdict.kind, d.verdict.name) == ("cause", "vapor_leak"), d.verdict.sentence
+    assert d.verdict.estimate.value == pytest.approx(1e-3, rel=0.25)
+    assert d.ranking == [] and d.dynamic_notes[0].startswith("the dynamic search could not start: the run reaches")
+
+
 def test_an_ullage_reading_far_colder_than_saturation_is_evidence_not_a_stop(nodal, tmp_path):
     """The ullage read 4 K low from t = 0: the model cannot start there (its hydrogen would be 2 K
     past saturation), so the dynamic search stops; the diagnosis does not. It names what the

@@ -48,7 +48,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..threads import single_threaded
-from ..errors import SimulationError, StateLeftDomain
+from ..errors import BeyondPropertyDomain, SimulationError, StateLeftDomain
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS
 from .audit import AuditConfig, RunAudit, audit_run
@@ -443,7 +443,19 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         say(f"inventory audit skipped: {line}")
     dynamic_notes: list[str] = []
     given = isinstance(runs, Fleet)
-    fleet = runs if given else Fleet.from_runs(runs)
+    try:
+        fleet = runs if given else Fleet.from_runs(runs)
+    except BeyondPropertyDomain as err:
+        # The audit reads CoolProp and holds these states; the model's property surrogate does
+        # not, so the dynamic search cannot start and the audit's verdict stands alone.
+        from ..properties import WIDE_CONFIG, load_surrogate, wide_domain
+
+        dynamic_notes.append(f"the dynamic search could not start: {err}")
+        say(dynamic_notes[-1])
+        fluid = runs_list[0].fluid
+        fleet = Fleet.from_runs(runs_list, surrogate=load_surrogate(fluid, wide_domain(fluid), WIDE_CONFIG))
+        return _audit_only(fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start,
+                           "could not start")
     with single_threaded():
         while True:
             try:

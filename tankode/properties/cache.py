@@ -21,6 +21,7 @@ from pathlib import Path
 import CoolProp
 import torch
 
+from ..errors import BeyondPropertyDomain
 from .config import SurrogateConfig
 from .domain import Domain, covers, default_domain, wide_domain
 from .fit import FORMAT_VERSION, fit_surrogate
@@ -126,14 +127,14 @@ def surrogate_covering(fluid_name: str, p_Pa=(), T_v_K=(), T_l_K=()) -> Surrogat
             iterables (``domain.covers``).
 
     Raises:
-        ValueError: the states lie beyond even the wide domain (naming the range it spans).
+        BeyondPropertyDomain: the states lie beyond even the wide domain (naming the range it spans).
     """
     tiers = ((default_domain(fluid_name), SurrogateConfig(), False), (wide_domain(fluid_name), WIDE_CONFIG, True))
     for domain, config, relative in tiers:
         if covers(domain, p_Pa, T_v_K, T_l_K, relative=relative):
             return load_surrogate(fluid_name, domain, config)
     d = wide_domain(fluid_name)
-    raise ValueError(f"the run reaches states beyond tankode's widest {fluid_name} property domain (pressure "
+    raise BeyondPropertyDomain(f"the run reaches states beyond tankode's widest {fluid_name} property domain (pressure "
                      f"{d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa, vapour up to {d.T_v_max_K:.4g} K, liquid down to "
                      f"{d.T_l_min_K:.4g} K, with 5 % of each pressure and of the temperature range to spare)")
 
