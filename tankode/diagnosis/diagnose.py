@@ -447,13 +447,13 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         fleet = runs if given else Fleet.from_runs(runs)
     except BeyondPropertyDomain as err:
         # The audit reads CoolProp and holds these states; the model's property surrogate does
-        # not, so the dynamic search cannot start and the audit's verdict stands alone.
-        from ..properties import WIDE_CONFIG, load_surrogate, wide_domain
+        # not, so the dynamic search cannot start and the audit's verdict stands alone (the
+        # fleet, on the default tier nothing simulates on, only carries the runs to the report).
+        from ..properties import surrogate_covering
 
         dynamic_notes.append(f"the dynamic search could not start: {err}")
         say(dynamic_notes[-1])
-        fluid = runs_list[0].fluid
-        fleet = Fleet.from_runs(runs_list, surrogate=load_surrogate(fluid, wide_domain(fluid), WIDE_CONFIG))
+        fleet = Fleet.from_runs(runs_list, surrogate=surrogate_covering(runs_list[0].fluid))
         return _audit_only(fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start,
                            "could not start")
     with single_threaded():

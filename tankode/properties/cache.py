@@ -134,9 +134,10 @@ def surrogate_covering(fluid_name: str, p_Pa=(), T_v_K=(), T_l_K=()) -> Surrogat
         if covers(domain, p_Pa, T_v_K, T_l_K, relative=relative):
             return load_surrogate(fluid_name, domain, config)
     d = wide_domain(fluid_name)
-    raise BeyondPropertyDomain(f"the run reaches states beyond tankode's widest {fluid_name} property domain (pressure "
-                     f"{d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa, vapour up to {d.T_v_max_K:.4g} K, liquid down to "
-                     f"{d.T_l_min_K:.4g} K, with 5 % of each pressure and of the temperature range to spare)")
+    raise BeyondPropertyDomain(f"the run reaches states beyond tankode's widest {fluid_name} property domain "
+                               f"(pressure {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa, vapour up to {d.T_v_max_K:.4g} K, "
+                               f"liquid down to {d.T_l_min_K:.4g} K, with 5 % of each pressure and of the temperature "
+                               "range to spare)")
 
 
 def clear_memo() -> None:
