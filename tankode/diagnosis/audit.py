@@ -27,8 +27,8 @@ Detection*, 2000). Per run:
    GLS of the mass and energy residuals of every phase (their cross-covariance included, an
    intercept per phase) estimates a constant unmetered mass rate and heat together with two
    nuisances: a correction of the wall heat capacity (a stated ``C_w`` that is wrong shows as
-   heat proportional to ``dT_w/dt``; prior ``wall_capacity_prior`` relative where the run does
-   not state ``C_w``, half that where it does) and an offset of the liquid temperature sensor
+   heat proportional to ``dT_w/dt``; prior ``wall_capacity_prior`` relative where the run states
+   ``C_w``; free where it does not, the balances then estimate it) and an offset of the liquid temperature sensor
    (it shows wherever the liquid mass changes, and in the enthalpy drains are metered at, which
    is taken at the measured ``T_l``; prior ``liquid_bias_prior_K``), and the property model's
    uncertainty: data written with another model of the fluid than the reference (an engineering
@@ -94,7 +94,9 @@ Detection*, 2000). Per run:
 Without a level sensor the mass balance is not observable: the liquid volume is then taken from
 the metered mass (no leak assumed) and only the energy balance is audited. Without a wall
 temperature the wall's energy is taken to follow the liquid's temperature, with an uncertainty
-of half the ullage-liquid temperature change times the heat capacity.
+of half the ullage-liquid temperature change times the heat capacity at each knot, and a steady
+storage over each phase as a nuisance (prior: the heat capacity times half the widest
+ullage-liquid gap, over the phase's length), which a heavy wall's unseen warming needs.
 
 Limits: each phase is treated as well mixed at its measured temperature (a stratified phase read
 by one sensor is a bias the audit sees only as the liquid offset above); rates are constant over
@@ -162,8 +164,12 @@ class AuditConfig:
     z_name_properties: float = 4.0
     # Hypotheses are told apart when the others' chi2 is this much larger (3 sigma for one parameter).
     chi2_separation: float = 9.0
-    # Relative prior standard deviation of a wall heat capacity the run does not state.
-    wall_capacity_prior: float = 0.5
+    # Relative prior standard deviation of the wall heat capacity the run states (a stated value
+    # is a drawing's mass times a handbook c_p: a quarter covers the alloy's c_p at cryogenic
+    # temperatures and the fittings). A capacity the run does not state has no prior: tankode's
+    # aluminium-shell guess (``tankode.wall``) can be off by a factor of 50 on another
+    # simulator's tank, so the balances estimate it and no "wrong capacity" is competed.
+    wall_capacity_prior: float = 0.25
     # K; prior standard deviation of the liquid temperature sensor's offset (a weak prior: it
     # only keeps the offset defined where the liquid mass never changes).
     liquid_bias_prior_K: float = 2.0
@@ -325,6 +331,9 @@ class RunAudit:
             entering) from the joint fit with both free; mass is None without a level sensor.
         wall_capacity_factor: true C_w / stated (or assumed) C_w, as ``liquid_offset_K``; None
             where T_w is not measured or never changes.
+        wall_heat_capacity_J_per_K: the stated (or assumed) C_w the factor multiplies (J/K).
+        wall_capacity_stated: False where the run does not state C_w: the factor is then the
+            balances' estimate of an unknown, not a finding.
         liquid_offset_K: the liquid temperature reading's offset from what the balances need
             (estimated with the hypothesis the findings rest on, or with both rates free).
         hypotheses: the single-cause fits of step 6, by name.
@@ -361,6 +370,16 @@ class RunAudit:
     findings: tuple[InventoryFinding, ...]
     withheld: tuple[str, ...]
     series: dict = field(repr=False)
+    wall_heat_capacity_J_per_K: float | None = None
+    wall_capacity_stated: bool = True
+
+    @property
+    def wall_heat_capacity(self) -> Estimate | None:
+        """The wall heat capacity the balances read (J/K), or None where they do not read it."""
+        if self.wall_capacity_factor is None or self.wall_heat_capacity_J_per_K is None:
+            return None
+        c = self.wall_heat_capacity_J_per_K
+        return Estimate(self.wall_capacity_factor.value * c, self.wall_capacity_factor.std * c)
 
     def finding(self, name: str) -> InventoryFinding | None:
         """The finding called ``name``, or None."""
@@ -377,6 +396,7 @@ class RunAudit:
             "run": self.run, "phases": [p.to_json() for p in self.phases],
             "mass_kg_s": self.mass_kg_s.to_json() if self.mass_kg_s else None, "heat_W": self.heat_W.to_json(),
             "wall_capacity_factor": self.wall_capacity_factor.to_json() if self.wall_capacity_factor else None,
+            "wall_heat_capacity_J_per_K": self.wall_heat_capacity_J_per_K, "wall_capacity_stated": self.wall_capacity_stated,
             "liquid_offset_K": self.liquid_offset_K.to_json(),
             "hypotheses": {k: h.to_json() for k, h in self.hypotheses.items()}, "birge": self.birge,
             "chi2_between_phases": self.chi2_between_phases, "consistency": list(self.consistency),
@@ -579,8 +599,14 @@ def _gls(X: np.ndarray, r: np.ndarray, C: np.ndarray):
     L = np.linalg.cholesky(C)
     Xw = np.linalg.solve(L, X)
     rw = np.linalg.solve(L, r)
-    coef, *_ = np.linalg.lstsq(Xw, rw, rcond=None)
-    cov = np.linalg.pinv(Xw.T @ Xw)
+    # From the whitened design's SVD, not the pseudo-inverse of its normal matrix: squaring the
+    # condition number there (a kilowatt prior beside gram-per-second rates reaches 1e15) cut
+    # the weakest direction and reported its variance as nil.
+    U, sv, Vt = np.linalg.svd(Xw, full_matrices=False)
+    keep = sv > sv[0] * max(n, k) * np.finfo(float).eps
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
+    coef = Vt.T @ (inv * (U.T @ rw))
+    cov = (Vt.T * inv**2) @ Vt
     res = rw - Xw @ coef
     return coef, cov, float(res @ res), max(n - k, 1)
 
@@ -609,6 +635,7 @@ class _PhaseData:
     wall: np.ndarray  # -C_w T_w / H_REF at the knots (a wall capacity correction's signature), 0 without T_w
     cols: dict  # hypothesis signatures [M; E / H_REF] at the knots
     props: dict  # property perturbations' signatures [M; E / H_REF] at the knots, per unit perturbation
+    drift_W: float = 0.0  # without T_w: prior std (W) of the wall's unseen storage, steady over the phase
 
 
 def _metered(thermo: _Thermo, sched, knots: np.ndarray, p_k: np.ndarray, hv_k: np.ndarray, hl_k: np.ndarray,
@@ -739,9 +766,17 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     CM = sum(np.outer(Jm[:, j], Jm[:, j]) * covs[j] for j in range(5))
     CE = sum(np.outer(Je[:, j], Je[:, j]) * covs[j] for j in range(5))
     CME = sum(np.outer(Jm[:, j], Je[:, j]) * covs[j] for j in range(5))
-    if not wall_ok:  # the wall's energy taken to follow the liquid: half the ullage-liquid gap as its std
+    drift_W = 0.0
+    if not wall_ok:
+        # The wall's energy taken to follow the liquid, give or take half the change of the
+        # ullage-liquid gap at each knot; and give or take a steady drift over the phase
+        # (``_PhaseData.drift_W``): a wall that lags its fluids keeps lagging (a heavy wall warming
+        # through a hold stores part of the metered heat load), which a per-knot spread averages
+        # out of the rate. The drift's std is half the widest ullage-liquid gap over the phase's
+        # length (the wall stays between its fluids within about that).
         gap = C_w * 0.5 * np.abs((vals[:, 1] - vals[0, 1]) - (vals[:, 2] - vals[0, 2]))
         CE = CE + np.diag(gap**2 + (1e-6 * C_w) ** 2)
+        drift_W = C_w * 0.5 * float(np.max(np.abs(vals[:, 1] - vals[:, 2]))) / max(b - a, 1.0)
     tt = knots - a
     X = np.stack([np.ones(n), tt], axis=1)
     mass_est, birge_m = None, 1.0
@@ -751,7 +786,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         mass_est = Estimate(float(cm[1]), float(math.sqrt(max(vm[1, 1], 0.0))) * birge_m)
     ce, ve, chi_e, dof_e = _gls(X, rE, CE)
     birge_e = _birge(chi_e, dof_e)
-    heat_est = Estimate(float(ce[1]), float(math.sqrt(max(ve[1, 1], 0.0))) * birge_e)
+    heat_est = Estimate(float(ce[1]), math.hypot(float(math.sqrt(max(ve[1, 1], 0.0))) * birge_e, drift_W))
     inflow = met["in_M"][-1] / (b - a)
     phase = PhaseAudit(a, b, _kind(sched.at(a)), mass_est, heat_est, float(inflow),
                        float(hvs.mean()), float(hls.mean()), birge_m, birge_e)
@@ -769,10 +804,10 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
         C = np.block([[CM * birge_m**2, CME * birge_m * E_scale], [CME.T * birge_m * E_scale, CE * E_scale**2]])
         data = _PhaseData(tt, rM, rE, C, np.concatenate([Jm[:, 2], J_Tl_E / _H_REF]),
                           np.concatenate([zeros, wall]), {k: np.concatenate(v) for k, v in sig.items()},
-                          {k: np.concatenate(v) for k, v in props.items()})
+                          {k: np.concatenate(v) for k, v in props.items()}, drift_W)
     else:
         data = _PhaseData(tt, None, rE, CE * E_scale**2, J_Tl_E / _H_REF, wall, {k: v[1] for k, v in sig.items()},
-                          {k: v[1] for k, v in props.items()})
+                          {k: v[1] for k, v in props.items()}, drift_W)
     fig = {"t_s": knots, "M": Ms, "M_std": np.sqrt(np.clip(np.diag(CM), 0, None)) if level_ok else np.full(n, np.nan),
            "E": Es, "E_std": np.sqrt(np.clip(np.diag(CE), 0, None)), "metered_M": met["M"], "metered_E": met["E"],
            "level_ok": level_ok}
@@ -799,7 +834,8 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
         config: an ``AuditConfig``.
         wall_heat_capacity_J_per_K: m_w c_w (J/K); the run's when None (and an aluminium-shell
             estimate when the run states none, ``tankode.wall``).
-        wall_capacity_assumed: the value is an estimate (gets the ``wall_capacity_prior``).
+        wall_capacity_assumed: the value is an estimate (its correction is free, estimated by the
+            balances, and a wrong wall heat capacity is not a hypothesis).
 
     Raises:
         ValueError: the run does not measure p_v, T_v and T_l, or no phase has enough samples.
@@ -892,7 +928,8 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
                                 "property priors): not named")
     series = _series(figs)
     return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
-                    tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(kept), tuple(withheld), series)
+                    tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(kept), tuple(withheld), series,
+                    C_w, not wall_capacity_assumed)
 
 
 def _thermometer(offset: Estimate, superheat: float, config: AuditConfig) -> list[InventoryFinding]:
@@ -944,13 +981,13 @@ def _explain(fit: "_RunFit", mass_level: bool, excluded: str):
         # An inert gas shows only where gas is vented, and not where the liquid rules it out.
         if name == "noncondensable_gas" and (not fit.has_vent or excluded):
             continue
-        if name == "wall_heat_capacity_error" and not fit.use_wall:
+        if name == "wall_heat_capacity_error" and not fit.stated_wall:
             continue
         s = sols[name] = fit.solve([name])
         value, std = s.rate(name, B)
         shown = 1.0 + value if name == "wall_heat_capacity_error" else value
         hyps[name] = Hypothesis(name, s.chi2 / B**2, Estimate(shown, std), value / std if std > 0 else 0.0)
-    if fit.use_wall:
+    if fit.stated_wall:
         s = sols[HEAT_AT_STATED_WALL] = fit.solve(["heat"], stated_wall=True)
         value, std = s.rate("heat", B)
         hyps[HEAT_AT_STATED_WALL] = Hypothesis(HEAT_AT_STATED_WALL, s.chi2 / B**2, Estimate(value, std),
@@ -981,7 +1018,7 @@ def _energy_only(d: _PhaseData) -> _PhaseData:
         return d
     n = len(d.tt)
     return _PhaseData(d.tt, None, d.rE, d.C[n:, n:], d.J_Tl[n:], d.wall[n:], {k: v[n:] for k, v in d.cols.items()},
-                      {k: v[n:] for k, v in d.props.items()})
+                      {k: v[n:] for k, v in d.props.items()}, d.drift_W)
 
 
 class _Solution:
@@ -1036,9 +1073,24 @@ class _RunFit:
                 self.nuisance[name] = np.concatenate([d.props[name] for d in datas])
                 self.prior[name] = getattr(config, attr)
                 self.has_properties = True
+        # Without a wall sensor, each phase's unseen wall storage: a steady power over the phase
+        # (the heat's signature there), with its prior (``_PhaseData.drift_W``), in units of that
+        # prior (unit-scaled, the GLS keeps its conditioning: a 10 kW prior in W left the heat's
+        # variance to the pseudo-inverse's cut-off).
+        o = 0
+        for i, d in enumerate(datas):
+            m = len(d.C)
+            if d.drift_W > 0:
+                c = np.zeros(n)
+                c[o:o + m] = d.cols["heat"] * d.drift_W
+                self.nuisance[f"wall_drift_{i}"], self.prior[f"wall_drift_{i}"] = c, 1.0
+            o += m
         if self.use_wall:
             self.nuisance["wall"] = np.concatenate([d.wall for d in datas])
-            self.prior["wall"] = config.wall_capacity_prior if assumed else 0.5 * config.wall_capacity_prior
+            if not assumed:  # an unstated capacity is free (AuditConfig.wall_capacity_prior)
+                self.prior["wall"] = config.wall_capacity_prior
+        # Only a stated capacity can be wrong, or be held at its value.
+        self.stated_wall = self.use_wall and not assumed
 
     def column(self, name: str) -> np.ndarray:
         return np.concatenate([d.cols[name] for d in self.datas])
