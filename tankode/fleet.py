@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,7 +121,7 @@ class Fleet:
             if not (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
                     and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
                 return None
-        return Fleet.from_runs(self.runs, surrogate)
+        return dataclasses.replace(self, fluid=surrogate)
 
     @property
     def n_env(self) -> int:

@@ -51,6 +51,7 @@ from ..threads import single_threaded
 from ..errors import BeyondPropertyDomain, SimulationError, StateLeftDomain
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS
+from ..wall import WallHeatCapacity
 from .audit import AuditConfig, RunAudit, audit_run
 from .data import CHANNELS, HoldOutTail, LeaveOneRunOut
 from .evidence import Score, bootstrap_gain, information_criteria, score_tests
@@ -456,6 +457,8 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
         fleet = Fleet.from_runs(runs_list, surrogate=surrogate_covering(runs_list[0].fluid))
         return _audit_only(fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes, start,
                            "could not start")
+    if not given:
+        fleet = _walls_from_audits(fleet, audits, dynamic_notes, say)
     with single_threaded():
         while True:
             try:
@@ -479,6 +482,27 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 say(dynamic_notes[-1])
                 return _audit_only(fleet, base_closure, fixed_mechanisms, config, inv, audit_notes, dynamic_notes,
                                    start, stop.stage)
+
+
+# A wall heat capacity the run does not state is taken from the audit where the balances read it
+# this well (relative standard error); tankode's aluminium-shell guess can be 50 times off.
+_WALL_FROM_AUDIT_REL_STD = 0.3
+
+
+def _walls_from_audits(fleet: Fleet, audits, notes: list, say) -> Fleet:
+    """``fleet`` with each unstated wall heat capacity the audit reads within ``_WALL_FROM_AUDIT_REL_STD``
+    replaced by that reading (still marked assumed: it is an estimate, not a stated value)."""
+    read = {a.run: a.wall_heat_capacity for a in audits if not a.wall_capacity_stated}
+    walls = []
+    for run, wall in zip(fleet.runs, fleet.walls):
+        c = read.get(run.name)
+        if wall.assumed and c is not None and c.value > 0 and c.std < _WALL_FROM_AUDIT_REL_STD * c.value:
+            wall = WallHeatCapacity(c.value, True, f"unknown in the run; the inventory audit reads {c.value:.4g} +- "
+                                                   f"{c.std:.2g} J/K (instead of {wall.value_J_per_K:.4g} J/K assumed)")
+            notes.append(f"{run.name}: wall heat capacity {wall.note}")
+            say(notes[-1])
+        walls.append(wall)
+    return dataclasses.replace(fleet, walls=tuple(walls))
 
 
 def testable(candidates, fixed) -> list[str]:
@@ -517,6 +541,12 @@ def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConf
             audit_notes, dynamic_notes: list, start: float, say) -> Diagnosis:
     obs = problem.obs
     candidates = testable(config.candidates, problem.fixed)
+    unstated = [r.name for r, w in zip(problem.fleet.runs, problem.fleet.walls) if w.assumed]
+    if unstated and "wall_heat_capacity_error" in candidates:
+        # A capacity no run states cannot be wrong; the audit estimates it (AuditConfig.wall_capacity_prior).
+        candidates.remove("wall_heat_capacity_error")
+        dynamic_notes.append(f"wall_heat_capacity_error not tested: no wall heat capacity stated for "
+                             f"{', '.join(unstated)} (the inventory audit estimates it)")
     say(f"baseline calibrated: chi2 {base.chi2:.1f} on {base.n_data} observations ({base.status})")
     for line in folds.failed_starts:
         say(f"calibration start dropped: {line}")
