@@ -88,7 +88,14 @@ def _whole_number(text: str, option: str) -> int:
 
 
 def _initial(run, how: str):
-    """The run started as asked (``metadata`` or ``measured``), saying where its metadata and first samples disagree."""
+    """The run started as asked (``metadata`` or ``measured``), saying where its metadata and first samples
+    disagree, with a wall heat capacity it does not state read by the inventory audit where it can be."""
+    if len(run.observations):
+        from .diagnosis.audit import with_audited_wall
+
+        run, note = with_audited_wall(run)
+        if note:
+            print(f"note: {note}")
     for note in run.notes():
         print(f"note: {note}")
     for note in run.initial_disagreements():

@@ -24,8 +24,10 @@ import layer_sim
 import nodal_sim
 from verdict_checks import assert_right_or_silent
 from tankode import read_run
+from tankode.cli import main
+from tankode.run_io import write_run
 from tankode.diagnosis import diagnose, write_report
-from tankode.diagnosis.audit import AuditConfig, audit_run
+from tankode.diagnosis.audit import AuditConfig, audit_run, with_audited_wall
 
 HEAT = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
@@ -121,6 +123,24 @@ def test_a_wall_heat_capacity_the_run_does_not_state_is_estimated_not_named(noda
     assert not a.wall_capacity_stated and "wall_heat_capacity_error" not in a.hypotheses
     c = a.wall_heat_capacity
     assert abs(c.value - stated) < 3 * c.std and c.std < 0.25 * stated, (c, stated)
+
+
+def test_simulate_takes_a_wall_heat_capacity_the_run_does_not_state_from_the_audit(nodal, tmp_path, capsys):
+    """The run above written with its wall unstated: ``tankode simulate`` (as ``assimilate`` and
+    ``predict``) simulates with the audit's reading, says so, and writes the capacity it used.
+    With the aluminium-shell guess (31 kJ/K) the first 30 minutes of this tank are assimilated to
+    J 134 (floor 2.5), with the audit's reading of the whole run (1.4 MJ/K) to 9.5, with the true
+    capacity to 2.8."""
+    run = nodal("random_430", "mcadams")
+    unstated = dataclasses.replace(run, tank=dataclasses.replace(run.tank, wall_heat_capacity_J_per_K=None))
+    json_path, _ = write_run(unstated, tmp_path / "in")
+    assert json.loads(json_path.read_text())["tank"]["wall_heat_capacity_J_per_K"] is None
+    assert main(["simulate", str(json_path), "--out", str(tmp_path / "out")]) == 0
+    said = capsys.readouterr().out
+    assert "the run states no wall heat capacity; the inventory audit of the whole run reads" in said, said
+    used = json.loads((tmp_path / "out" / f"{run.name}.json").read_text())["tank"]["wall_heat_capacity_J_per_K"]
+    assert abs(used - run.tank.wall_heat_capacity_J_per_K) < 0.35 * run.tank.wall_heat_capacity_J_per_K
+    assert with_audited_wall(run) == (run, None)  # a stated capacity is kept
 
 
 def test_a_heavy_wall_no_sensor_reads_is_an_uncertainty_not_heat_leaving(nodal):

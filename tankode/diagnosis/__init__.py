@@ -9,7 +9,7 @@ mass and heat from the sensors and CoolProp, no heat-transfer law), then the dyn
 residuals are weighed is a strategy: ``SensorNoise()`` (default) or ``ModelError()``.
 """
 
-from .audit import AuditConfig, RunAudit, audit_run
+from .audit import AuditConfig, RunAudit, audit_run, with_audited_wall
 from .data import HoldOutTail, LeaveOneRunOut, Observed
 from .diagnose import DEFAULT_CANDIDATES, Candidate, Diagnosis, DiagnosisConfig, Thresholds, calibrate, diagnose
 from .evidence import bootstrap_gain, information_criteria, score_tests
@@ -21,7 +21,7 @@ from .residuals import heldout_rms_sigma, ljung_box, residual_report
 from .weighting import ModelError, SensorNoise
 
 __all__ = [
-    "AuditConfig", "RunAudit", "Verdict", "audit_run",
+    "AuditConfig", "RunAudit", "Verdict", "audit_run", "with_audited_wall",
     "DEFAULT_CANDIDATES", "Candidate", "Diagnosis", "DiagnosisConfig", "Fit", "HoldOutTail", "LeaveOneRunOut", "ModelError", "Observed", "Problem",
     "SensorNoise",
     "Thresholds", "bootstrap_gain", "calibrate", "diagnose", "fit", "heldout_rms_sigma", "information_criteria",

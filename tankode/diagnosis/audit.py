@@ -1330,5 +1330,38 @@ def _single(h: Hypothesis, note: str = "", ullage: _Ullage | None = None) -> Inv
                             f"enthalpy: a {'vapour' if h.name == 'vapor_leak' else 'liquid'} leak", h.name)
 
 
+# A wall heat capacity the run does not state is replaced by the audit's reading where the balances
+# read it this well (relative standard error): tankode's aluminium-shell guess can be 50 times off.
+WALL_READING_REL_STD = 0.3
+
+
+def wall_reading(a: RunAudit) -> Estimate | None:
+    """The audit's reading of a wall heat capacity its run does not state (J/K), where it is
+    positive and within ``WALL_READING_REL_STD``; None otherwise (a stated capacity included)."""
+    c = None if a.wall_capacity_stated else a.wall_heat_capacity
+    return c if c is not None and c.value > 0 and c.std < WALL_READING_REL_STD * c.value else None
+
+
+def with_audited_wall(run: Run, config: AuditConfig = AuditConfig()) -> tuple[Run, str | None]:
+    """``run`` with an unstated wall heat capacity set to the inventory audit's reading, and a note.
+
+    The run unchanged (and None) where it states its capacity, has no wall sensor, cannot be
+    audited or the reading is not within ``WALL_READING_REL_STD``. The audit reads the whole
+    run: a stream that starts with an unknown wall should state it once read.
+    """
+    if run.tank.wall_heat_capacity_J_per_K is not None or "T_w_K" not in run.observations.measured_channels:
+        return run, None
+    try:
+        a = audit_run(run, config)
+    except ValueError:
+        return run, None
+    c = wall_reading(a)
+    if c is None:
+        return run, None
+    note = (f"{run.name}: the run states no wall heat capacity; the inventory audit of the whole run reads "
+            f"{c.value:.4g} +- {c.std:.2g} J/K, used in its place")
+    return dataclasses.replace(run, tank=dataclasses.replace(run.tank, wall_heat_capacity_J_per_K=c.value)), note
+
+
 __all__ = ["AuditConfig", "Estimate", "Hypothesis", "PhaseAudit", "InventoryFinding", "RunAudit", "audit_run",
-           "HYPOTHESES", "HEAT_CANDIDATES"]
+           "HYPOTHESES", "HEAT_CANDIDATES", "WALL_READING_REL_STD", "wall_reading", "with_audited_wall"]

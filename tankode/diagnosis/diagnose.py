@@ -52,7 +52,7 @@ from ..errors import BeyondPropertyDomain, SimulationError, StateLeftDomain
 from ..fleet import Fleet
 from ..mechanisms import MECHANISMS
 from ..wall import WallHeatCapacity
-from .audit import AuditConfig, RunAudit, audit_run
+from .audit import AuditConfig, RunAudit, audit_run, wall_reading
 from .data import CHANNELS, HoldOutTail, LeaveOneRunOut
 from .evidence import Score, bootstrap_gain, information_criteria, score_tests
 from .fit import Fit, fit
@@ -484,19 +484,14 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                                    start, stop.stage)
 
 
-# A wall heat capacity the run does not state is taken from the audit where the balances read it
-# this well (relative standard error); tankode's aluminium-shell guess can be 50 times off.
-_WALL_FROM_AUDIT_REL_STD = 0.3
-
-
 def _walls_from_audits(fleet: Fleet, audits, notes: list, say) -> Fleet:
-    """``fleet`` with each unstated wall heat capacity the audit reads within ``_WALL_FROM_AUDIT_REL_STD``
-    replaced by that reading (still marked assumed: it is an estimate, not a stated value)."""
-    read = {a.run: a.wall_heat_capacity for a in audits if not a.wall_capacity_stated}
+    """``fleet`` with each unstated wall heat capacity replaced by the audit's reading where it is
+    usable (``audit.wall_reading``), still marked assumed: it is an estimate, not a stated value."""
+    read = {a.run: wall_reading(a) for a in audits}
     walls = []
     for run, wall in zip(fleet.runs, fleet.walls):
         c = read.get(run.name)
-        if wall.assumed and c is not None and c.value > 0 and c.std < _WALL_FROM_AUDIT_REL_STD * c.value:
+        if wall.assumed and c is not None:
             wall = WallHeatCapacity(c.value, True, f"unknown in the run; the inventory audit reads {c.value:.4g} +- "
                                                    f"{c.std:.2g} J/K (instead of {wall.value_J_per_K:.4g} J/K assumed)")
             notes.append(f"{run.name}: wall heat capacity {wall.note}")
