@@ -205,9 +205,8 @@ def cmd_assimilate(args) -> int:
         local, parallel = launch.shard(runs, config, closure, mechanisms)
         print(launch.describe([r.name for r in runs]), flush=True)
     assim = Assimilator(local, config, closure=closure, mechanisms=mechanisms, parallel=parallel)
-    for run, wall in zip(assim.fleet.runs, assim.fleet.walls):
-        if wall.assumed:  # what the model took for a wall the run does not state
-            print(f"note: {run.name}: wall heat capacity {wall.note}", flush=True)
+    for note in assim.fleet.wall_notes():  # what the model took for a wall the run does not state
+        print(f"note: {note}", flush=True)
 
     def report(r):
         tag = f" ({r.note})" if r.note else ""

@@ -123,6 +123,10 @@ class Fleet:
                 return None
         return dataclasses.replace(self, fluid=surrogate)
 
+    def wall_notes(self) -> tuple[str, ...]:
+        """One sentence per tank whose wall heat capacity the run does not state: what was taken."""
+        return tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(self.runs, self.walls) if w.assumed)
+
     @property
     def n_env(self) -> int:
         return len(self.runs)

@@ -116,7 +116,7 @@ def simulate(
         notes = (f"the trajectory left the default property domain at t = {err.t_s:.6g} s; simulated on the wide "
                  f"one ({d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa)",)
         states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
-    notes += tuple(f"{r.name}: wall heat capacity {w.note}" for r, w in zip(fleet.runs, fleet.walls) if w.assumed)
+    notes += fleet.wall_notes()
     return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))
 
 
