@@ -294,6 +294,8 @@ def cmd_diagnose(args) -> int:
         print(f"cause: none; the model's form: {d.named} ({v.source}): {v.sentence.removeprefix('no cause: ')}")
     else:
         print(f"cause: none ({v.sentence.removeprefix('no cause: ')})")
+    for note in v.notes:
+        print(f"note: {note}")
     if d.withheld:
         print("withheld by the inventory audit (see the report): " + "; ".join(d.withheld))
     print(f"diagnosis took {d.wall_time_s:.1f} s ({d.n_simulations} simulations); wrote {paths['json']}, "

@@ -188,7 +188,7 @@ def test_the_saturation_test_rules_an_inert_gas_out_only_where_the_liquid_reads_
     assert helium.liquid_superheat_K < -0.2 and helium.inert_gas_excluded == ""
     assert audit_consistency("noncondensable_gas", 200.0, Inventory((helium,)))[0]
     warm = audit_run(read_run(ind.simulate_run("small_selfpress", None, 0.0, seed=0, out_dir=tmp_path)))
-    assert warm.liquid_superheat_K > 0.1 and warm.inert_gas_excluded
+    assert warm.liquid_superheat_K > 0.1 and warm.inert_gas_excluded and not warm.inert_gas_unmeasured
     ok, why = audit_consistency("noncondensable_gas", 21.0, Inventory((warm,)))
     assert not ok and why.startswith("ruled out by the saturation test: the liquid reads a median"), why
     assert audit_consistency("pressure_sensor_bias", -5e3, Inventory((warm,)))[0]
@@ -218,8 +218,19 @@ def test_the_vents_measure_an_inert_gas_by_the_mass_they_meter_beyond_the_invent
         assert audit_consistency("noncondensable_gas", n_mol, Inventory((a,)))[0]
         ok, why = audit_consistency("noncondensable_gas", 10 * n_mol, Inventory((a,)))
         assert not ok and why.startswith("ruled out by the inventory audit"), why
-    # A tank that vents nothing has no such evidence: the hypothesis is not fitted.
-    assert "noncondensable_gas" not in audit_run(nodal("random_120", "slosh_energy")).hypotheses
+    assert a.inert_gas_unmeasured == ""  # vented with a level sensor: measured, even if not named
+    # A tank that vents nothing has no such evidence: the hypothesis is not fitted, and the audit
+    # and a verdict of no cause say that an inert gas is neither shown nor ruled out.
+    from tankode.diagnosis.diagnose import Thresholds
+    from tankode.diagnosis.verdict import decide
+
+    quiet = audit_run(nodal("random_120", "slosh_energy"))
+    assert "noncondensable_gas" not in quiet.hypotheses
+    assert quiet.inert_gas_unmeasured.startswith("an inert gas (helium) is not measurable in this run: no gas is "
+                                                 "vented"), quiet.inert_gas_unmeasured
+    verdict = decide(Inventory((quiet,)), [], Thresholds())
+    assert verdict.kind == "none" and verdict.notes == (quiet.inert_gas_unmeasured,)
+    assert decide(Inventory((a,)), [], Thresholds()).notes == ()
 
 
 def _assert_audit_finds(run, finding, value):

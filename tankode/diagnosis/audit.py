@@ -56,7 +56,11 @@ Detection*, 2000). Per run:
    other way round, a liquid whose median reading over the run lies ``consistency_margin_K``
    above saturation at the measured pressure rules an inert gas out (it would lower the
    hydrogen's partial pressure and hold the liquid below ``T_sat(p)``): the dynamic search may
-   then not name one (``RunAudit.inert_gas_excluded``).
+   then not name one (``RunAudit.inert_gas_excluded``). Where neither holds and no gas is vented
+   (or no level sensor reads what the vents carry), the balances cannot measure an inert gas
+   either (step 6), and the audit says so (``RunAudit.inert_gas_unmeasured``), as does a verdict
+   of no cause: such a tank may hold helium at any share of its pressure these sensors do not
+   show.
 6. **Name what the balances show** (``InventoryFinding``) by gross-error detection: each
    single cause is a hypothesis with its own signature in the two balances: unmetered heat
    ``(0, Q t)``; a vapour leak ``-(L t, L integral h_v dt)``; a liquid leak ``-(L t, L integral
@@ -346,6 +350,12 @@ class RunAudit:
             pressure on most of the run, which an inert gas contradicts (it lowers the
             hydrogen's partial pressure and with it the liquid surface's temperature).
         inert_gas_excluded: why the readings rule an inert gas out ("" where they do not).
+        inert_gas_unmeasured: why the readings neither show nor rule out an inert gas, where the
+            balances cannot measure one (no gas vented, or no level sensor) and the saturation
+            test neither sees nor excludes one ("" otherwise). The liquid's subcooling is no
+            measure of it: a pressurised liquid sits well below saturation with no gas at all,
+            and a liquid under helium can sit above saturation at the fluid's partial pressure
+            (its surface cooled by evaporation).
         findings: what is named (step 6).
         withheld: sentences of what step 6 does not name because only one of its two explanations
             (with the reference's properties, and with another model of the fluid allowed for)
@@ -372,6 +382,7 @@ class RunAudit:
     series: dict = field(repr=False)
     wall_heat_capacity_J_per_K: float | None = None
     wall_capacity_stated: bool = True
+    inert_gas_unmeasured: str = ""
 
     @property
     def wall_heat_capacity(self) -> Estimate | None:
@@ -401,7 +412,7 @@ class RunAudit:
             "hypotheses": {k: h.to_json() for k, h in self.hypotheses.items()}, "birge": self.birge,
             "chi2_between_phases": self.chi2_between_phases, "consistency": list(self.consistency),
             "inert_partial_pressure_Pa": self.inert_partial_pressure_Pa, "liquid_superheat_K": self.liquid_superheat_K,
-            "inert_gas_excluded": self.inert_gas_excluded,
+            "inert_gas_excluded": self.inert_gas_excluded, "inert_gas_unmeasured": self.inert_gas_unmeasured,
             "findings": [f.to_json() for f in self.findings], "withheld": list(self.withheld),
         }
 
@@ -927,9 +938,14 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
                                 "reference's properties, but another model of the fluid explains it (AuditConfig's "
                                 "property priors): not named")
     series = _series(figs)
+    unmeasured = ""
+    if inert is None and not excluded and not (fit.has_vent and mass_level):
+        why = "no gas is vented" if not fit.has_vent else "no level sensor reads the mass its vents carry"
+        unmeasured = (f"an inert gas (helium) is not measurable in this run: {why}, and the ullage does not read "
+                      "persistently colder than saturation, so these readings neither show nor rule out one")
     return RunAudit(run.name, tuple(phases), mass, heat, cw, offset, hyps, B, chi2_between,
                     tuple(s for s, _ in consistency), inert, superheat, excluded, tuple(kept), tuple(withheld), series,
-                    C_w, not wall_capacity_assumed)
+                    C_w, not wall_capacity_assumed, unmeasured)
 
 
 def _thermometer(offset: Estimate, superheat: float, config: AuditConfig) -> list[InventoryFinding]:

@@ -220,6 +220,8 @@ def audit_markdown(d: Diagnosis) -> list[str]:
         L.append("Findings: " + ("; ".join(named) if named else "nothing unmetered beyond the noise") + ".")
         if a.consistency:
             L.append("Saturation consistency: " + "; ".join(a.consistency) + ".")
+        if a.inert_gas_unmeasured:
+            L.append("Inert gas: " + a.inert_gas_unmeasured + ".")
         if a.withheld:
             L.append("Withheld: " + "; ".join(a.withheld) + ".")
         L += ["", "| single cause | estimate | chi2 |", "|---|---|---|"]

@@ -43,6 +43,7 @@ compensating something else (another simulator's liquid that superheats at rest,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -81,7 +82,8 @@ class Verdict:
         source: ``"inventory audit"``, ``"dynamic search"`` or ``"inventory audit, located by
             the dynamic search"``.
         sentence: the verdict in words.
-        notes: why candidates were ruled out or not narrowed.
+        notes: why candidates were ruled out or not narrowed; with "none", what the balances could
+            not measure (an inert gas where no gas is vented).
     """
 
     kind: str
@@ -276,7 +278,12 @@ def decide(inv: Inventory, ranking, thresholds) -> Verdict:
                        f"at least {inv.inert_Pa:.4g} Pa, or a biased pressure sensor (the dynamic search names neither)")
     if named:
         return _dynamic(named[0])
-    return NONE if inv.audits else NONE_UNAUDITED
+    if not inv.audits:
+        return NONE_UNAUDITED
+    # "No cause" must not read as "no inert gas" where the balances cannot see one.
+    unmeasured = tuple((f"{a.run}: " if len(inv.audits) > 1 else "") + a.inert_gas_unmeasured
+                       for a in inv.audits if a.inert_gas_unmeasured)
+    return dataclasses.replace(NONE, notes=unmeasured) if unmeasured else NONE
 
 
 def _dynamic(c) -> Verdict:
