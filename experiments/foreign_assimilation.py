@@ -24,6 +24,12 @@ from ``tests/layer_sim.py``, a fourth: a stratified liquid and ullage in layers 
 nodes along the height (a 15 m3 hydrogen tank with heads: pressurisation, vent, sloshing; a 5 m3
 nitrogen sphere: fill, drain, vent; an 8 m3 hydrogen horizontal cylinder: drain, top-up).
 
+``--scenarios upright_cycles sphere_cycles hcyl_cycles`` takes three of those tanks with their
+operations run twice in an hour, so that the held-out 30 % repeats operations the training part
+showed: the forecast then asks the agent to carry what it learned rather than meet an operation
+it never saw (which the four default scenarios ask, and which only the base closure can
+answer).
+
 The simulator is run through its command line (``python tests/nodal_sim.py``), as a user's data
 would arrive: as files.
 
@@ -65,6 +71,12 @@ SCENARIOS = (
     ("hcyl_drain_fill", "horizontal cylinder 10.2 m3: heat, drain, fill with venting"),
     ("ellipsoidal_light_wall", "elliptical heads 6.8 m3, light wall: heat, pressurisation, vent, sloshing"),
 )
+# Three of them with their operations twice in an hour: the held-out part repeats what training saw.
+REPEATED = (
+    ("upright_cycles", "upright cylinder 13.6 m3: pressurisation, sloshing, vent, drain, twice"),
+    ("sphere_cycles", "sphere 4.2 m3: pressurisation, vent, sloshing, fill, twice"),
+    ("hcyl_cycles", "horizontal cylinder 10.2 m3: drain, pressurisation, sloshing, fill with venting, twice"),
+)
 NOISE = "low"  # the simulator's low level: 300 Pa, 0.05 K, 1 mm
 
 
@@ -90,7 +102,7 @@ def main(argv=None) -> dict:
                          "tests/layer_sim.py, each with its own laws")
     ap.add_argument("--laws", nargs="+", choices=LAWS, default=list(LAWS))
     ap.add_argument("--scenarios", nargs="+",
-                    choices=sorted({s for s, _ in SCENARIOS} | {s for v in OWN_LAW_SCENARIOS.values() for s in v}),
+                    choices=sorted({s for s, _ in SCENARIOS + REPEATED} | {s for v in OWN_LAW_SCENARIOS.values() for s in v}),
                     help="default: the simulator's scenarios")
     ap.add_argument("--duration", type=float, default=None, help="cut each run to this many seconds (default: whole)")
     ap.add_argument("--replay-segments", type=int, default=AssimilationConfig.replay_segments,
@@ -104,8 +116,8 @@ def main(argv=None) -> dict:
     data = out / "runs"
     data.mkdir(parents=True, exist_ok=True)
     own = args.simulator in OWN_LAW_SCENARIOS
-    names = list(OWN_LAW_SCENARIOS[args.simulator]) if own else [s for s, _ in SCENARIOS]
-    scenarios = args.scenarios or names
+    names = list(OWN_LAW_SCENARIOS[args.simulator]) if own else [s for s, _ in SCENARIOS + REPEATED]
+    scenarios = args.scenarios or (names if own else [s for s, _ in SCENARIOS])
     if any(s not in names for s in scenarios):
         ap.error(f"--simulator {args.simulator} has the scenarios {names}, got {scenarios}")
     laws = [args.simulator] if own else args.laws
@@ -115,7 +127,8 @@ def main(argv=None) -> dict:
     rows = []
     for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
         config = dataclasses.replace(base, seed=agent_seed)
-        seed = (0 if own else LAWS.index(law)) * len(names) + names.index(scenario)  # the same run whatever the selection
+        # the same run whatever the selection (the repeated-operation tanks after the four)
+        seed = (0 if own else LAWS.index(law)) * (len(names) if own else len(SCENARIOS)) + names.index(scenario)
         path = make_run(data, scenario, law, seed=seed, duration_s=duration_s)
         run = read_run(path)
         start = time.perf_counter()

@@ -1301,6 +1301,44 @@ for _sc in [
          (2250.0, _OFF_IN),
          (3300.0, {"mdot_v_out_kg_s": 0.006}),
          (4200.0, {"mdot_v_out_kg_s": 0.0})]),
+    # The same three tanks with their operations run twice in an hour: the last 30 % (from 42
+    # minutes) repeats operations the first 70 % showed, so a forecast from the split asks the
+    # agent to carry what it learned, not to extrapolate to an operation it never saw.
+    _scenario(
+        "upright_cycles", "13.6 m3 upright cylinder, 500 W: pressurisation, sloshing, vent, drain, twice (1 h)",
+        {"shape": "vertical_cylinder", "radius_m": 1.2, "height_m": 3.0, "wall_heat_capacity_J_per_K": 5.0e5},
+        1.2e5, 22.0, None, 21.5, 0.5, 3600.0,
+        [(0.0, {"Q_aw_W": 500.0}), (300.0, _gh2(0.010)), (600.0, _OFF_IN),
+         (900.0, {"slosh_amplitude_m": 0.01, "slosh_frequency_Hz": 0.5}), (1200.0, {**_NO_SLOSH, "mdot_v_out_kg_s": 0.004}),
+         (1500.0, {"mdot_v_out_kg_s": 0.0, "mdot_l_out_kg_s": 0.2}), (1800.0, {"mdot_l_out_kg_s": 0.0}),
+         (2100.0, _gh2(0.010)), (2400.0, _OFF_IN),
+         (2700.0, {"slosh_amplitude_m": 0.01, "slosh_frequency_Hz": 0.5}), (3000.0, {**_NO_SLOSH, "mdot_v_out_kg_s": 0.004}),
+         (3300.0, {"mdot_v_out_kg_s": 0.0, "mdot_l_out_kg_s": 0.2})]),
+    _scenario(
+        "sphere_cycles", "4.2 m3 sphere, 300 W: pressurisation, vent, sloshing, fill, twice (1 h)",
+        {"shape": "sphere", "radius_m": 1.0, "wall_heat_capacity_J_per_K": 3.0e5},
+        1.3e5, 23.0, None, 22.0, 0.6, 3600.0,
+        [(0.0, {"Q_aw_W": 300.0}), (300.0, _gh2(0.004, 50.0)), (600.0, _OFF_IN), (900.0, {"mdot_v_out_kg_s": 0.003}),
+         (1200.0, {"mdot_v_out_kg_s": 0.0, "slosh_amplitude_m": 0.008, "slosh_frequency_Hz": 0.6}),
+         (1500.0, {**_NO_SLOSH, "mdot_l_in_kg_s": 0.03, "T_l_in_K": 20.5}), (1800.0, {"mdot_l_in_kg_s": 0.0}),
+         (2100.0, _gh2(0.004, 50.0)), (2400.0, _OFF_IN), (2700.0, {"mdot_v_out_kg_s": 0.003}),
+         (3000.0, {"mdot_v_out_kg_s": 0.0, "slosh_amplitude_m": 0.008, "slosh_frequency_Hz": 0.6}),
+         (3300.0, {**_NO_SLOSH, "mdot_l_in_kg_s": 0.03, "T_l_in_K": 20.5})]),
+    _scenario(
+        "hcyl_cycles", "10.2 m3 horizontal cylinder, 400 W: drain, pressurisation, sloshing, fill with venting, "
+        "twice (1 h)",
+        {"shape": "horizontal_cylinder", "radius_m": 0.9, "cylinder_length_m": 4.0,
+         "wall_heat_capacity_J_per_K": 4.0e5},
+        1.4e5, 24.0, None, 22.5, 0.6, 3600.0,
+        [(0.0, {"Q_aw_W": 400.0}), (300.0, {"mdot_l_out_kg_s": 0.15}),
+         (600.0, {"mdot_l_out_kg_s": 0.0, **_gh2(0.006, 50.0)}),
+         (900.0, {**_OFF_IN, "slosh_amplitude_m": 0.008, "slosh_frequency_Hz": 0.5}),
+         (1200.0, {**_NO_SLOSH, "mdot_l_in_kg_s": 0.12, "T_l_in_K": 20.3, "mdot_v_out_kg_s": 0.0015}),
+         (1500.0, {"mdot_l_in_kg_s": 0.0, "mdot_v_out_kg_s": 0.0}),
+         (2100.0, {"mdot_l_out_kg_s": 0.15}), (2400.0, {"mdot_l_out_kg_s": 0.0, **_gh2(0.006, 50.0)}),
+         (2700.0, {**_OFF_IN, "slosh_amplitude_m": 0.008, "slosh_frequency_Hz": 0.5}),
+         (3000.0, {**_NO_SLOSH, "mdot_l_in_kg_s": 0.12, "T_l_in_K": 20.3, "mdot_v_out_kg_s": 0.0015}),
+         (3300.0, {"mdot_l_in_kg_s": 0.0, "mdot_v_out_kg_s": 0.0})]),
 ]:
     SCENARIOS[_sc["name"]] = _sc
 
