@@ -321,7 +321,7 @@ def test_a_leak_named_beside_a_thermometer_bias_keeps_its_rate(tmp_path):
 
 @pytest.mark.parametrize("scenario,mechanism,value,finding", [
     ("lh2_light_wall", None, 0.0, None),
-    # its balances read 0.9 g/s gained and 340 W leaving with nothing hidden (Birge ratio above 1)
+    # a light-walled tank whose null the straight lines fit only to a Birge ratio of 1.9
     ("random_3", None, 0.0, None),
     ("lh2_light_wall", "vapor_leak_kg_s", 1e-3, "vapor_leak"),
     ("random_1", "heat_leak_liquid_W", 300.0, "unmetered_heat"),
