@@ -87,15 +87,23 @@ def _whole_number(text: str, option: str) -> int:
         raise ValueError(f"{option}: expected a whole number, got {text!r}") from None
 
 
+def _audited_wall(run):
+    """``run`` with a wall heat capacity it does not state read by the inventory audit where it can be
+    (``with_audited_wall``), saying so. Not for ``diagnose``, which audits the run itself and keeps
+    such a capacity an estimate (not a stated value a fault could make wrong)."""
+    if not len(run.observations):
+        return run
+    from .diagnosis.audit import with_audited_wall
+
+    run, note = with_audited_wall(run)
+    if note:
+        print(f"note: {note}")
+    return run
+
+
 def _initial(run, how: str):
     """The run started as asked (``metadata`` or ``measured``), saying where its metadata and first samples
-    disagree, with a wall heat capacity it does not state read by the inventory audit where it can be."""
-    if len(run.observations):
-        from .diagnosis.audit import with_audited_wall
-
-        run, note = with_audited_wall(run)
-        if note:
-            print(f"note: {note}")
+    disagree."""
     for note in run.notes():
         print(f"note: {note}")
     for note in run.initial_disagreements():
@@ -118,7 +126,7 @@ def cmd_simulate(args) -> int:
 
         inputs.append(Path(args.model))
     out = check_output_dir(args.out, inputs)
-    run = _initial(run, args.initial)
+    run = _initial(_audited_wall(run), args.initial)
     if args.model is not None:
         closure, mechanisms, _ = load_model(args.model)
     hidden = _parse_mechanisms(args.mechanism)
@@ -161,7 +169,7 @@ def cmd_assimilate(args) -> int:
         raise FileNotFoundError(f"--resume: there is no checkpoint to resume from ({checkpoint} does not exist)")
     if writes and checkpoint.exists() and not args.resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that training, or choose another --out")
-    runs = [_initial(r, args.initial) for r in read]
+    runs = [_initial(_audited_wall(r), args.initial) for r in read]
     # Options left out take the configuration's defaults; the gradient follows the integrator
     # (Rosenbrock has no continuous adjoint).
     integrator = args.integrator or AssimilationConfig.integrator
@@ -241,7 +249,7 @@ def cmd_predict(args) -> int:
     run = read_run(args.run)
     out = check_output_dir(args.out, _input_files(run) + [Path(args.model)])
     closure, mechanisms, meta = load_model(args.model)
-    run = _initial(run, args.initial)
+    run = _initial(_audited_wall(run), args.initial)
     if run.fluid != meta["fluid"]:
         raise ValueError(f"model {args.model} is for {meta['fluid']}, run {args.run} is {run.fluid}")
     sol = simulate(run, closure, output_dt_s=args.dt, mechanisms=mechanisms)

@@ -406,19 +406,27 @@ def test_forty_minutes_of_another_simulators_tank_with_nothing_hidden_name_nothi
     assert f"![inventory_{run.name}.png](inventory_{run.name}.png)" in md
 
 
-def test_a_wall_heat_capacity_the_run_does_not_state_is_read_by_the_audit_and_used_by_the_model(nodal):
-    """40 minutes of the 13.6 m3 upright tank, nothing hidden, its 0.5 MJ/K wall left unstated: the
-    audit reads the wall within 3 standard errors, the dynamic search simulates with that reading
-    (not the aluminium-shell guess) and does not test a wrong capacity, and nothing is named."""
+def test_a_wall_heat_capacity_the_run_does_not_state_is_read_by_the_audit_and_used_by_the_model(nodal, tmp_path):
+    """40 minutes of the 13.6 m3 upright tank, nothing hidden, its 0.5 MJ/K wall left unstated,
+    diagnosed from the command line: the audit reads the wall within 3 standard errors as an
+    unknown (not as a stated capacity that could be wrong), the dynamic search simulates with that
+    reading (not the aluminium-shell guess) and does not test a wrong capacity, and nothing is
+    named. (The command line had stated the audit's reading in the run before the diagnosis saw
+    it, which made the audit judge it as stated.)"""
     run = nodal("upright_13m3", "mcadams", duration_s=2400.0)
     stated = run.tank.wall_heat_capacity_J_per_K
-    d = diagnose([dataclasses.replace(run, tank=dataclasses.replace(run.tank, wall_heat_capacity_J_per_K=None))])
-    assert d.verdict.kind == "none" and d.cause is None, d.verdict.sentence
-    c = d.audits[0].wall_heat_capacity
-    assert abs(c.value - stated) < 3 * c.std < 0.9 * c.value, (c, stated)
-    assert any("the inventory audit reads" in n for n in d.dynamic_notes), d.dynamic_notes
-    assert any(n.startswith("wall_heat_capacity_error not tested") for n in d.dynamic_notes), d.dynamic_notes
-    assert "wall_heat_capacity_error" not in {c.mechanism for c in d.ranking}
+    json_path, _ = write_run(dataclasses.replace(run, tank=dataclasses.replace(run.tank, wall_heat_capacity_J_per_K=None)),
+                             tmp_path / "in")
+    assert main(["diagnose", str(json_path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    d = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert d["verdict"]["kind"] == "none" and d["cause"] is None, d["verdict"]["sentence"]
+    a = d["audit"]["runs"][0]
+    assert not a["wall_capacity_stated"] and "wall_heat_capacity_error" not in a["hypotheses"], a
+    c, c_std = (a["wall_capacity_factor"][k] * a["wall_heat_capacity_J_per_K"] for k in ("value", "std"))
+    assert abs(c - stated) < 3 * c_std < 0.9 * c, (c, c_std, stated)
+    assert any("the inventory audit reads" in n for n in d["dynamic_notes"]), d["dynamic_notes"]
+    assert any(n.startswith("wall_heat_capacity_error not tested") for n in d["dynamic_notes"]), d["dynamic_notes"]
+    assert "wall_heat_capacity_error" not in {c["mechanism"] for c in d["ranking"]}
 
 
 def test_a_model_that_leaves_the_default_tier_is_searched_again_on_the_wide_one_and_a_failure_leaves_the_audit(
