@@ -5,10 +5,13 @@ from __future__ import annotations
 from ..bulk import BulkPhaseChange
 from .base import Mechanism, Param
 
-# K past saturation at which the boiling share flashes: a quarter of the bulk's default
-# threshold, above the softplus onset (a tenth of it), so that a liquid sitting at saturation
-# sees exp(-10) of the onset width and stays put; below any thermometer's resolution.
-THRESHOLD_K = 0.05
+# K past saturation at which the boiling share flashes. A lumped liquid that boils holds its
+# temperature within this of T_sat(p), so the threshold is a pressure bias of the model of
+# THRESHOLD_K * dp_sat/dT (LH2 at 1-3 bar: 40-75 kPa/K): 0.01 K keeps it at 0.4-0.8 kPa, about
+# one sensor sigma, where 0.05 K put it at 2-4 kPa. The softplus onset is a tenth of it, so a
+# liquid sitting at saturation sees exp(-10) of the onset width (1e-3 K) and stays put; the
+# surrogate's saturation temperature is accurate to 4e-4 K at 20 K.
+THRESHOLD_K = 0.01
 
 
 class SaturatedBoiling(Mechanism):
