@@ -189,6 +189,11 @@ class TankModel(nn.Module):
         pl = self.fluid.liquid(u_l, rho_l)
         g = self.geometry
         H_l = g.level_at_volume(V_l)
+        T_wv = T_wl = None
+        for m, z in zip(self.mechanisms, self.mechanism_states(s)):
+            offsets = m.wall_node_offsets_K(z, *reversed(g.wetted_areas_m2(H_l)))
+            if offsets is not None:
+                T_wv, T_wl = T_w + offsets[0], T_w + offsets[1]
         return ClosureInputs(
             T_v_K=pv.T, T_l_K=pl.T, T_w_K=T_w, T_sat_K=pv.T_sat, rho_v_kg_m3=rho_v, rho_l_kg_m3=rho_l,
             vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),
@@ -196,6 +201,7 @@ class TankModel(nn.Module):
             slosh_amplitude_m=forcing.slosh_amplitude_m, slosh_frequency_Hz=forcing.slosh_frequency_Hz,
             m_v_kg=m_v, m_l_kg=m_l, mdot_v_in_kg_s=forcing.mdot_v_in_kg_s, mdot_v_out_kg_s=forcing.mdot_v_out_kg_s,
             mdot_l_in_kg_s=forcing.mdot_l_in_kg_s, mdot_l_out_kg_s=forcing.mdot_l_out_kg_s,
+            T_wv_K=T_wv, T_wl_K=T_wl,
         )
 
     def fluxes(self, s: Tensor, forcing: Forcing) -> tuple[Fluxes, object, object]:

@@ -431,6 +431,40 @@ def test_two_node_wall_start_share_splits_the_measured_mean_between_the_nodes():
     assert torch.equal(absent.initial_state(s0)[:, -1], torch.zeros(1, dtype=torch.float64))
 
 
+def test_two_node_wall_each_phase_convects_on_the_node_it_touches():
+    """The closure sees the dry node for the ullage and the wetted node for the liquid (their
+    capacity-weighted mean is the sensor's T_w): natural convection on the wall then equals the
+    lumped model's at a mean wall set to that node, and differs from it at the mean. A lump
+    (R_s = 0) gives the mean to both."""
+    from tankode.closures import NaturalConvectionClosure
+
+    base, s0, geom = _tank()
+    f = Forcing.rest(1)
+    model, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=10.0, start_share=1.0)])
+    model.closure = base.closure = NaturalConvectionClosure()
+    s = model.initial_state(s0)
+    x_in = model.closure_inputs(s, f)
+    T_dry, T_wet = x_in.wall_temperatures_K()
+    A_wl, A_wv = geom.wetted_areas_m2(geom.level_at_volume(s0[:, 6]))
+    a_d = A_wv / (A_wv + A_wl)
+    assert torch.allclose(a_d * T_dry + (1 - a_d) * T_wet, s0[:, 4], rtol=1e-12)
+    assert float(T_dry - T_wet) > 5.0
+    theta = model.closure(x_in)
+
+    def lumped_at(T_w):
+        s_w = s0.clone()
+        s_w[:, 4] = T_w
+        return base.closure(base.closure_inputs(s_w, f))
+
+    assert torch.allclose(theta[:, 2], lumped_at(T_dry)[:, 2], rtol=1e-12)  # h_wv on the dry node
+    assert torch.allclose(theta[:, 3], lumped_at(T_wet)[:, 3], rtol=1e-12)  # h_wl on the wetted node
+    assert torch.allclose(theta[:, :2], lumped_at(s0[:, 4])[:, :2], rtol=1e-12)  # the interface's as before
+    assert not torch.allclose(theta[:, 2:], lumped_at(s0[:, 4])[:, 2:], rtol=1e-3)
+    lump, _, _ = _tank([make_mechanism("two_node_wall", R_sheet_K_per_W=0.0)])
+    x_lump = lump.closure_inputs(lump.initial_state(s0), f)
+    assert all(torch.equal(T, s0[:, 4]) for T in x_lump.wall_temperatures_K())
+
+
 def test_two_node_wall_nodes_follow_their_balances_and_the_tank_conserves_energy():
     """The dry node's balance holds at a state with the nodes apart (``T_d``, ``T_ww`` rebuilt
     from the model's ``dT_w`` and ``dx``); R_s = 0 is the baseline; a heat load warms the dry

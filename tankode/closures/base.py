@@ -21,6 +21,13 @@ class ClosureInputs(NamedTuple):
     flows in kg/s. ``vapor`` and ``liquid`` are the surrogate's ``PhaseProps`` of each phase
     (k, mu, cp, beta, ...). The four mass flows are the operations applied over the segment
     (``tankode.forcing.Forcing``): an inflow or outflow stirs the phase it crosses.
+
+    ``T_w_K`` is the wall's mean (what a wall sensor reads); ``T_wv_K`` and ``T_wl_K`` are the
+    temperatures of the wall the ullage and the liquid touch (a two-node wall's dry and wetted
+    nodes, ``tankode.mechanisms.TwoNodeWall``), None where the wall is one lump
+    (``wall_temperatures_K`` then gives the mean for both). A wall closure must convect on the
+    temperature difference its own surface sees: after a warm-gas injection the dry wall is
+    warmer than the ullage while the mean, held down by the wetted wall, is kelvins colder.
     """
 
     T_v_K: Tensor
@@ -42,6 +49,13 @@ class ClosureInputs(NamedTuple):
     mdot_v_out_kg_s: Tensor
     mdot_l_in_kg_s: Tensor
     mdot_l_out_kg_s: Tensor
+    T_wv_K: Tensor | None = None
+    T_wl_K: Tensor | None = None
+
+    def wall_temperatures_K(self) -> tuple[Tensor, Tensor]:
+        """``(T_wall_vapour, T_wall_liquid)`` ``(env,)``: each phase's wall, the mean where not given."""
+        return (self.T_w_K if self.T_wv_K is None else self.T_wv_K,
+                self.T_w_K if self.T_wl_K is None else self.T_wl_K)
 
 
 class Closure(nn.Module):

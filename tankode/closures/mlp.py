@@ -34,7 +34,9 @@ Dimensionless inputs, chosen by name in ``MLPConfig.features``, in sets named by
 
 The paper's ``ln(|Gr| + 1)`` inputs carry the size of a temperature difference, not its sign:
 they cannot tell a warm ullage over a cold wall from a cold one under a warm wall, which
-convect differently. The signed inputs (tankode's) say which side is warmer.
+convect differently. The signed inputs (tankode's) say which side is warmer. ``T_w`` in the
+wall features is the wall each phase touches (``ClosureInputs.wall_temperatures_K``: a two-node
+wall's dry node for the ullage, its wetted node for the liquid), not the wall's mean.
 
 ``|dT|`` is smoothed as ``sqrt(dT^2 + (0.05 K)^2)``: with ``g beta R^3/nu^2`` ~ 1e13 per kelvin
 for LH2, the raw ``ln(|Gr| + 1)`` climbs from 0 to 16 within a microkelvin of ``dT = 0`` with an
@@ -215,13 +217,13 @@ _FEATURES = {
     "Pr_l": lambda x: x.liquid.mu * x.liquid.cp / x.liquid.k / 2,
     "R_over_H": lambda x: x.aspect_ratio,
     "Re_1e4": lambda x: x.slosh_frequency_Hz * x.slosh_amplitude_m * x.radius_m / _nu_l(x) / 1e4,
-    "lnGr_wv": lambda x: _ln_gr(x.vapor.beta, x.T_w_K - x.T_v_K, _nu_v(x), x.radius_m) / 30,
-    "lnGr_wl": lambda x: _ln_gr(x.liquid.beta, x.T_w_K - x.T_l_K, _nu_l(x), x.radius_m) / 30,
+    "lnGr_wv": lambda x: _ln_gr(x.vapor.beta, x.wall_temperatures_K()[0] - x.T_v_K, _nu_v(x), x.radius_m) / 30,
+    "lnGr_wl": lambda x: _ln_gr(x.liquid.beta, x.wall_temperatures_K()[1] - x.T_l_K, _nu_l(x), x.radius_m) / 30,
     "lnGr_vl": lambda x: _ln_gr(x.liquid.beta, x.T_v_K - x.T_l_K, _nu_l(x), x.radius_m) / 30,
     "lnRe_wave": _re_wave,
     "lnGr_li_signed": _gr_li_signed,
     "f_over_f11": lambda x: x.slosh_frequency_Hz / first_slosh_frequency_Hz(x.radius_m, x.H_l_m),
-    "dT_wv_signed": lambda x: torch.tanh((x.T_w_K - x.T_v_K) / SIGNED_SCALE_K),
+    "dT_wv_signed": lambda x: torch.tanh((x.wall_temperatures_K()[0] - x.T_v_K) / SIGNED_SCALE_K),
     "dT_vi_signed": lambda x: torch.tanh((x.T_v_K - x.T_sat_K) / SIGNED_SCALE_K),
     "fill": lambda x: x.H_l_m * x.aspect_ratio / x.radius_m,
     "lnTurn_v_in": lambda x: _turnover(x.mdot_v_in_kg_s, x.m_v_kg),

@@ -10,8 +10,9 @@ the textbook gives, whatever the other surfaces do. Correlations (Incropera et a
 
       Nu_L = (0.825 + 0.387 Ra_L^(1/6) / (1 + (0.492/Pr)^(9/16))^(8/27))^2
 
-  with ``Ra_L = g beta |T_w - T_x| L^3 / (nu alpha)`` and ``L`` the height of the wall part in
-  contact with the phase (the level ``H_l`` for the liquid, ``H - H_l`` for the ullage; at least
+  with ``Ra_L = g beta |T_w - T_x| L^3 / (nu alpha)``, ``T_w`` the temperature of the wall part
+  in contact with the phase (a two-node wall's dry or wetted node, the mean of a lumped wall;
+  ``ClosureInputs.wall_temperatures_K``), and ``L`` the height of that wall part (the level ``H_l`` for the liquid, ``H - H_l`` for the ullage; at least
   ``min_height_share`` of the radius, so a nearly full or empty tank keeps a finite exchange).
 * **Interface**, each side on its own temperature difference to saturation, ``L = R/2`` (area
   over perimeter of a circular surface):
@@ -132,7 +133,7 @@ class NaturalConvectionClosure(Closure):
         s = torch.sigmoid(unstable / eps)
         nu_i = s * horizontal_unstable(ra_i) + (1 - s) * horizontal_stable(ra_i)
         h_i = _mixed(nu_i, nu_forced) * k / (R / 2)
-        ra_w = g_over * _smooth_abs(x.T_w_K[..., None] - T, eps) * L_wall**3
+        ra_w = g_over * _smooth_abs(torch.stack(x.wall_temperatures_K(), dim=-1) - T, eps) * L_wall**3
         h_w = _mixed(churchill_chu(ra_w, pr), nu_forced * L_wall / R) * k / L_wall
         return torch.cat([h_i, h_w], dim=-1)  # (h_vi, h_li, h_wv, h_wl)
 

@@ -201,6 +201,11 @@ class Mechanism(nn.Module):
         """
         return 0.0, 0.0, 0.0
 
+    def wall_node_offsets_K(self, z: Tensor, A_wv_m2: Tensor, A_wl_m2: Tensor) -> tuple[Tensor, Tensor] | None:
+        """How much warmer than the wall's mean ``T_w`` the dry and the wetted wall are (K),
+        given own states ``z`` and the wetted areas ``(env,)``; None: the wall is one lump."""
+        return None
+
     def interface_offset_K(self, z: Tensor) -> Tensor | float:
         """How much warmer than the bulk liquid the liquid at the interface is (K), given own states ``z``."""
         return 0.0

@@ -31,7 +31,8 @@ class TwoNodeWall(Mechanism):
     averaging over the wall reads; the nodes are ``T_d = T_w + a_w x`` and ``T_ww = T_w - a_d x``.
 
     The ullage receives ``h_wv A_wv (T_d - T_v)`` and the liquid ``h_wl A_wl (T_ww - T_l)``
-    instead of the lump's, i.e. ``q_v = h_wv A_wv a_w x`` and ``q_l = -h_wl A_wl a_d x`` beyond
+    instead of the lump's, each coefficient computed by the closure on the node its phase touches
+    (``wall_node_offsets_K``, ``ClosureInputs.wall_temperatures_K``), i.e. ``q_v = h_wv A_wv a_w x`` and ``q_l = -h_wl A_wl a_d x`` beyond
     the baseline, which the lump gives up (``q_w = -(q_v + q_l)``): energy is conserved. As the
     level moves, wall material changes node with its temperature: a rising level turns dry wall
     at ``T_d`` into wetted wall, a falling one wetted wall at ``T_ww`` into dry (the mixing of
@@ -85,6 +86,11 @@ class TwoNodeWall(Mechanism):
         R_s, share = self.param(0, a_d), self.param(1, a_d)
         x0 = torch.where(R_s > 0, share * (s0[..., 4] - start.T_l_K) / a_d, torch.zeros_like(a_d))
         return x0.unsqueeze(-1)
+
+    def wall_node_offsets_K(self, z, A_wv_m2, A_wl_m2):
+        a_d = (A_wv_m2 / (A_wv_m2 + A_wl_m2)).clamp(_MIN_SHARE, 1 - _MIN_SHARE)
+        x = z[..., 0]
+        return (1 - a_d) * x, -a_d * x
 
     def heat_W(self, s, forcing, fluxes, z):
         x = z[..., 0]
