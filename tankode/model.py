@@ -190,10 +190,12 @@ class TankModel(nn.Module):
         g = self.geometry
         H_l = g.level_at_volume(V_l)
         T_wv = T_wl = None
-        for m, z in zip(self.mechanisms, self.mechanism_states(s)):
-            offsets = m.wall_node_offsets_K(z, *reversed(g.wetted_areas_m2(H_l)))
-            if offsets is not None:
-                T_wv, T_wl = T_w + offsets[0], T_w + offsets[1]
+        if self.mechanisms:  # the wetted areas once, not per mechanism (a right-hand side's hot path)
+            A_wl, A_wv = g.wetted_areas_m2(H_l)
+            for m, z in zip(self.mechanisms, self.mechanism_states(s)):
+                offsets = m.wall_node_offsets_K(z, A_wv, A_wl)
+                if offsets is not None:
+                    T_wv, T_wl = T_w + offsets[0], T_w + offsets[1]
         return ClosureInputs(
             T_v_K=pv.T, T_l_K=pl.T, T_w_K=T_w, T_sat_K=pv.T_sat, rho_v_kg_m3=rho_v, rho_l_kg_m3=rho_l,
             vapor=pv, liquid=pl, H_l_m=H_l, radius_m=g.radius_m.expand_as(H_l),

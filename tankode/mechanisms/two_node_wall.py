@@ -11,6 +11,13 @@ from .base import Mechanism, Param, StateVar
 _MIN_SHARE = 0.02
 
 
+def _area_shares(A_wv_m2, A_wl_m2):
+    """(a_d, a_w, A_w): the dry and wetted shares of the wall's area, each at least ``_MIN_SHARE``."""
+    A_w = A_wv_m2 + A_wl_m2
+    a_d = (A_wv_m2 / A_w).clamp(_MIN_SHARE, 1 - _MIN_SHARE)
+    return a_d, 1 - a_d, A_w
+
+
 def _smooth_positive(x, eps):
     return 0.5 * (x + torch.sqrt(x * x + eps * eps))
 
@@ -77,9 +84,7 @@ class TwoNodeWall(Mechanism):
 
     def _shares(self, fluxes):
         """(a_d, a_w, A_w) from anything with the two wall areas (``Fluxes``, ``Start``)."""
-        A_w = fluxes.A_wv_m2 + fluxes.A_wl_m2
-        a_d = (fluxes.A_wv_m2 / A_w).clamp(_MIN_SHARE, 1 - _MIN_SHARE)
-        return a_d, 1 - a_d, A_w
+        return _area_shares(fluxes.A_wv_m2, fluxes.A_wl_m2)
 
     def initial_state(self, s0, start):
         a_d = self._shares(start)[0]
@@ -88,9 +93,9 @@ class TwoNodeWall(Mechanism):
         return x0.unsqueeze(-1)
 
     def wall_node_offsets_K(self, z, A_wv_m2, A_wl_m2):
-        a_d = (A_wv_m2 / (A_wv_m2 + A_wl_m2)).clamp(_MIN_SHARE, 1 - _MIN_SHARE)
+        a_d, a_w, _ = _area_shares(A_wv_m2, A_wl_m2)
         x = z[..., 0]
-        return (1 - a_d) * x, -a_d * x
+        return a_w * x, -a_d * x
 
     def heat_W(self, s, forcing, fluxes, z):
         x = z[..., 0]
