@@ -34,7 +34,10 @@ where two temperatures cross.
 Limits: vertical-plate and flat-interface formulas for every shape (a sphere's or a horizontal
 cylinder's curved wall, heads, and the sloshing of non-cylindrical tanks only approximately);
 no boiling on a wall above saturation; the wave from linear theory, which overestimates near
-resonance and ignores breaking. The agent (``tankode.closures.MLPClosure`` with
+resonance and ignores breaking. Under sloshing no textbook term is the truth: three
+independent simulators' laws put the liquid side's coefficient a factor of 10 apart at the
+same states, with this term between them (0.18-1.7 times it; ``experiments/README.md``,
+section 5), so the agent learns the sloshing from the data. The agent (``tankode.closures.MLPClosure`` with
 ``base="natural"``) multiplies each coefficient by a learned factor, so these formulas set the
 starting point and the shape of the closure, not its final values.
 """
