@@ -186,8 +186,7 @@ def test_stiff_real_tank_is_integrated_in_few_steps_and_a_window_trains():
     1,500 right-hand sides (measured 1,333 at rtol 1e-8; dopri5 needs 22,274 at rtol 1e-6), and
     a 30-minute window of the untrained agent trains with Backprop (J falls), which the adjoint
     cannot (test_assimilate: the adjoint's backward pass turns the state NaN). Six iterations: with
-    the boiling share trained from its start J falls from 8.5 to 4.5 (6.7 to 2.4 when that share
-    boiled 0.05 K past saturation and the closure saw the wall's mean, not each node)."""
+    the boiling share trained from its start J falls from 8.5 to 4.5."""
     run = read_run(MHTB / "P263981D.json").until(7200.0)
     ref = simulate(run, solver=LSODA(rtol=1e-10, atol=1e-12))
     sol = simulate(run, solver=Rosenbrock(rtol=1e-8, atol=1e-10))

@@ -12,8 +12,9 @@ the textbook gives, whatever the other surfaces do. Correlations (Incropera et a
 
   with ``Ra_L = g beta |T_w - T_x| L^3 / (nu alpha)``, ``T_w`` the temperature of the wall part
   in contact with the phase (a two-node wall's dry or wetted node, the mean of a lumped wall;
-  ``ClosureInputs.wall_temperatures_K``), and ``L`` the height of that wall part (the level ``H_l`` for the liquid, ``H - H_l`` for the ullage; at least
-  ``min_height_share`` of the radius, so a nearly full or empty tank keeps a finite exchange).
+  ``ClosureInputs.wall_temperatures_K``), and ``L`` the height of that wall part (the level
+  ``H_l`` for the liquid, ``H - H_l`` for the ullage; at least ``min_height_share`` of the
+  radius, so a nearly full or empty tank keeps a finite exchange).
 * **Interface**, each side on its own temperature difference to saturation, ``L = R/2`` (area
   over perimeter of a circular surface):
 
@@ -37,9 +38,10 @@ no boiling on a wall above saturation; the wave from linear theory, which overes
 resonance and ignores breaking. Under sloshing no textbook term is the truth: three
 independent simulators' laws put the liquid side's coefficient a factor of 10 apart at the
 same states, with this term between them (0.18-1.7 times it; ``experiments/README.md``,
-section 5), so the agent learns the sloshing from the data. The agent (``tankode.closures.MLPClosure`` with
-``base="natural"``) multiplies each coefficient by a learned factor, so these formulas set the
-starting point and the shape of the closure, not its final values.
+section 5), so the agent learns the sloshing from the data. The agent
+(``tankode.closures.MLPClosure`` with ``base="natural"``) multiplies each coefficient by a
+learned factor, so these formulas set the starting point and the shape of the closure, not its
+final values.
 """
 
 from __future__ import annotations

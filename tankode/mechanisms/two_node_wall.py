@@ -39,9 +39,10 @@ class TwoNodeWall(Mechanism):
 
     The ullage receives ``h_wv A_wv (T_d - T_v)`` and the liquid ``h_wl A_wl (T_ww - T_l)``
     instead of the lump's, each coefficient computed by the closure on the node its phase touches
-    (``wall_node_offsets_K``, ``ClosureInputs.wall_temperatures_K``), i.e. ``q_v = h_wv A_wv a_w x`` and ``q_l = -h_wl A_wl a_d x`` beyond
-    the baseline, which the lump gives up (``q_w = -(q_v + q_l)``): energy is conserved. As the
-    level moves, wall material changes node with its temperature: a rising level turns dry wall
+    (``wall_node_offsets_K``, ``ClosureInputs.wall_temperatures_K``), i.e.
+    ``q_v = h_wv A_wv a_w x`` and ``q_l = -h_wl A_wl a_d x`` beyond the baseline, which the lump
+    gives up (``q_w = -(q_v + q_l)``): energy is conserved. As the level moves, wall material
+    changes node with its temperature: a rising level turns dry wall
     at ``T_d`` into wetted wall, a falling one wetted wall at ``T_ww`` into dry (the mixing of
     ``tests/nodal_sim.py``-like nodal models, here written for the difference ``x``)::
 
