@@ -162,6 +162,10 @@ def cmd_assimilate(args) -> int:
     launch = launch_from_environment(args.collective_timeout)
     writes = launch is None or launch.writes
     read = [read_run(p) for p in args.runs]
+    for p, r in zip(args.runs, read):
+        if not (r.observations.t_s > r.t0_s).any():
+            raise ValueError(f"{p}: no measurement after the run's start (t = {r.t0_s:g} s): nothing for the agent "
+                             f"to learn from")
     out = check_output_dir(args.out, [f for r in read for f in _input_files(r)]
                            + ([Path(args.init)] if args.init is not None else []))
     checkpoint = out / "checkpoint.pt"
@@ -523,8 +527,17 @@ def main(argv=None) -> int:
         print(f"tankode {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # noqa: BLE001 - every failure becomes one line and exit code 2 (describe_error)
-        print(f"tankode {args.command}: error: {describe_error(err)}", file=sys.stderr)
+        print(f"tankode {args.command}: error: {_naming_the_runs(describe_error(err), args)}", file=sys.stderr)
         return _EXIT_ERROR
+
+
+def _naming_the_runs(message: str, args) -> str:
+    """``message`` led by the run files the command was given, unless it names one already (a
+    failure deep in the properties or the solver knows the state, not the file)."""
+    given = list(getattr(args, "runs", None) or []) or ([args.run] if getattr(args, "run", None) else [])
+    if not given or any(Path(p).name in message for p in given):
+        return message
+    return f"{', '.join(given)}: {message}"
 
 
 if __name__ == "__main__":

@@ -78,6 +78,7 @@ _DIMS_MAY_BE_ZERO = frozenset({("vertical_cylinder_elliptical_heads", "cylinder_
 _P_MIN_PA, _P_MAX_PA = 1e3, 1e8
 _T_MAX_K = 1000.0
 _H_MAX_M = 100.0
+LEVEL_ABOVE_TANK = 1.5  # a measured level beyond this share of the tank's inner height is an error
 
 # Column -> (kind, what it is) for the plausibility checks.
 _QUANTITY: dict[str, tuple[str, str]] = {
@@ -616,6 +617,18 @@ class Run:
             raise RunValueError("observations", f"must be Observations, got {type(self.observations).__name__}")
         obs = self.observations
         _check_columns_plausible("observations", OBS_CHANNELS, obs.t_s, obs.values, self.fluid)
+        level = obs.values[:, OBS_CHANNELS.index("H_l_m")]
+        if np.isfinite(level).any():
+            height = float(self.tank.geometry().height_m)
+            # Generous: a level gauge may read from a datum of its own a little below the tank.
+            limit = LEVEL_ABOVE_TANK * height + 5 * float(self.noise_std.get(_NOISE_OF["H_l_m"], 0.0))
+            above = np.nan_to_num(level, nan=-np.inf) > limit
+            if above.any():
+                k = int(np.argmax(above))
+                raise RunValueError("observations.H_l_m",
+                                    f"at t = {float(obs.t_s[k])!r} s: the level {float(level[k])!r} m lies above "
+                                    f"{LEVEL_ABOVE_TANK:g} times the tank's inner height {height:.4g} m (a level in "
+                                    "another unit, or another tank's geometry?)", t_s=float(obs.t_s[k]))
         for ch in obs.measured_channels:
             if _NOISE_OF[ch] not in self.noise_std:
                 raise RunValueError(

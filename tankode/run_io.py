@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import io
 import json
 import math
 import re
@@ -47,6 +48,9 @@ __all__ = ["read_run", "write_run", "read_timeseries_csv", "timeseries_path"]
 
 _JSON_TOP_REQUIRED = ("name", "fluid", "tank", "initial", "timeseries")
 _JSON_TOP_OPTIONAL = ("source", "noise_std", "duration_s")
+# s; the longest span a run may cover: decades of storage, far past any test, short of spans
+# (1e300 s) that only a wrong time unit makes and that no simulation or window count can hold.
+MAX_SPAN_S = 1e9
 _JSON_INITIAL_REQUIRED = ("p_v_Pa", "T_v_K", "T_l_K", "fill_ratio")
 _JSON_INITIAL_OPTIONAL = ("T_w_K",)
 
@@ -143,8 +147,21 @@ def _json_type(v: Any) -> str:
     return "an object"
 
 
+def _read_text(path: Path) -> str:
+    """The file's text (UTF-8, a byte-order mark allowed); bytes that are not UTF-8 are a format
+    error naming their line and column."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        column = e.start - (raw.rfind(b"\n", 0, e.start) + 1) + 1
+        raise RunFormatError(path, line, column, f"byte 0x{raw[e.start]:02x} is not UTF-8 text (the format's "
+                                                 f"encoding): save the file as UTF-8") from None
+
+
 def _load_json(path: Path) -> tuple[Any, _JsonCtx]:
-    text = path.read_text(encoding="utf-8-sig")
+    text = _read_text(path)
     ctx = _JsonCtx(path, text)
     try:
         data = json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=_reject_constant)
@@ -177,7 +194,7 @@ class _CsvData:
 def _read_csv(path: Path, fluid: str) -> _CsvData:
     """Read and validate a time-series CSV, every error naming the line and the column."""
     known = OBS_CHANNELS + INPUT_NAMES
-    with open(path, newline="", encoding="utf-8-sig") as fh:
+    with io.StringIO(_read_text(path), newline="") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
         if header is None:
@@ -369,6 +386,12 @@ def read_run(path) -> Run:
         duration = ts.last_t_s - ts.t0_s
         if duration <= 0:
             raise ctx.error("duration_s", f"missing, and {csv_path} has a single time stamp to default it from")
+    if duration > MAX_SPAN_S:
+        why = (f"the run spans {duration:.3g} s, beyond {MAX_SPAN_S:.0e} s ({MAX_SPAN_S / 3.156e7:.0f} years): "
+               f"not a tank's run (check the time unit)")
+        if data.get("duration_s") is None:
+            raise RunFormatError(csv_path, ts.last_line, "t_s", why)
+        raise ctx.error("duration_s", why)
     inputs = ts.schedule if ts.schedule is not None else Schedule.constant(ts.t0_s)
     try:
         return Run(
@@ -378,7 +401,21 @@ def read_run(path) -> Run:
     except RunValueError as e:  # what needs the whole run (an input against the tank): name its CSV row
         if e.key.startswith("inputs.") and e.t_s in ts.input_line:
             raise RunFormatError(csv_path, ts.input_line[e.t_s], e.key.split(".", 1)[1], e.detail) from None
+        line = _line_of_time(csv_path, e.t_s) if e.key.startswith("observations.") and e.t_s is not None else None
+        if line is not None:
+            raise RunFormatError(csv_path, line, e.key.split(".", 1)[1], e.detail) from None
         raise ctx.from_field(e) from None
+
+
+def _line_of_time(csv_path: Path, t_s: float) -> int | None:
+    """The line of the CSV row stamped ``t_s`` (an accepted file: one row per time stamp), or None."""
+    for line, row in enumerate(csv.reader(io.StringIO(_read_text(csv_path), newline="")), start=1):
+        try:
+            if line > 1 and row and float(row[0]) == t_s:
+                return line
+        except ValueError:
+            continue
+    return None
 
 
 def _beside_or_under(path: Path, folder: Path) -> bool:

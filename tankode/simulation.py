@@ -51,6 +51,11 @@ class Solution:
         return float(self.t_s[-1] - self.t_s[0]) / max(self.wall_time_s, 1e-12)
 
 
+# Output times of one simulation at most: 10 million states of 7 float64 per tank is 560 MB, a
+# day at 10 ms; beyond it an output grid exhausts memory before the solver starts.
+MAX_OUTPUT_TIMES = 1e7
+
+
 def output_times(fleet: Fleet, dt_s: float | None, t_eval=None) -> Tensor:
     """Output grid: ``t_eval`` if given, else every ``dt_s`` plus the runs' observation times."""
     t0, t1 = fleet.t0_s, fleet.t_end_s
@@ -58,6 +63,9 @@ def output_times(fleet: Fleet, dt_s: float | None, t_eval=None) -> Tensor:
         return torch.tensor(np.asarray(t_eval, dtype=float))  # a copy: run arrays are read-only
     if dt_s is None or not dt_s > 0:
         raise ValueError(f"output_dt_s must be > 0 s, got {dt_s}")
+    if (t1 - t0) / dt_s > MAX_OUTPUT_TIMES:
+        raise ValueError(f"output_dt_s = {dt_s:g} s gives {(t1 - t0) / dt_s:.3g} output times over the run's "
+                         f"{t1 - t0:g} s, more than {MAX_OUTPUT_TIMES:.0e}: choose a longer spacing (--dt)")
     grid = [np.arange(t0, t1, dt_s), [t1]]
     grid += [r.observations.t_s for r in fleet.runs]
     t = np.unique(np.concatenate(grid))

@@ -100,6 +100,15 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
     assert "missing required key" in capsys.readouterr().err
     assert main(["simulate", "case9", "--out", str(tmp_path)]) == 2
     assert "neither a case" in capsys.readouterr().err
+    # An output grid no memory holds names the option instead of failing to allocate it.
+    assert main(["simulate", "case2", "--out", str(tmp_path / "fine"), "--dt", "1e-9"]) == 2
+    assert "(--dt)" in capsys.readouterr().err
+    # A run with nothing measured after its start has nothing to train on: said, not a silent model.
+    csv = tmp_path / "case2.csv"
+    csv.write_text("".join(csv.read_text().splitlines(keepends=True)[:2]))
+    assert main(["assimilate", str(tmp_path / "case2.json"), "--out", str(tmp_path / "agent")]) == 2
+    assert "no measurement after the run's start" in capsys.readouterr().err
+    assert not (tmp_path / "agent" / "model.json").exists()
 
 
 def test_diagnose_block_hold_and_refit_top_reach_the_config(tmp_path, monkeypatch, capsys):

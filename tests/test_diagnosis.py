@@ -591,6 +591,13 @@ def test_splits_partition_the_samples_and_validate():
     assert not (train & held).any() and (train | held).all()
     # the tail of each run: the last 25 % of its own duration
     assert obs.t_s[held[0]].min() > 900.0 and obs.t_s[held[1]].min() > 675.0
+    # A declared duration past the data (inputs beyond the last reading): the tail of what was
+    # measured is held out, not an empty stretch after it.
+    import dataclasses
+
+    longer = [dataclasses.replace(r, duration_s=2 * r.duration_s) for r in runs]
+    ((_, held_long),) = HoldOutTail(0.25).folds(Fleet.from_runs(longer), Observed.from_fleet(Fleet.from_runs(longer)))
+    assert np.array_equal(held_long, held)
     folds = LeaveOneRunOut().folds(fleet, obs)
     assert [h.any(1).tolist() for _, h in folds] == [[True, False], [False, True]]
     with pytest.raises(ValueError, match="at least two runs"):

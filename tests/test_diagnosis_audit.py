@@ -147,8 +147,8 @@ def test_the_audit_refuses_a_run_without_the_channels_it_needs_in_one_line():
     values = obs.values.copy()
     values[:, 2] = np.nan  # no liquid temperature
     run = dataclasses.replace(data, observations=dataclasses.replace(obs, values=values))
-    with pytest.raises(ValueError, match=r"^run 'case3': the inventory audit needs p_v_Pa, T_v_K and T_l_K measured, "
-                                         r"not \['T_l_K'\]$"):
+    with pytest.raises(ValueError, match=r"^run 'case3': the inventory audit needs p_v_Pa, T_v_K and T_l_K measured; "
+                                         r"\['T_l_K'\] are not$"):
         audit_run(run)
     with pytest.raises(ValueError, match="AuditConfig.consistency_share must be in"):
         AuditConfig(consistency_share=1.5)

@@ -322,6 +322,41 @@ def test_json_errors_name_file_line_key(tmp_path, meta, key, needle, fragment):
     assert fragment in str(e)
 
 
+def test_undecodable_bytes_absurd_levels_and_spans_name_their_line(tmp_path):
+    # Bytes that are not UTF-8 (a Latin-1 degree sign in a CSV, an e-acute in the JSON).
+    csv_bytes = _BASE_CSV.replace("20.1,", "20.1\u00b0,", 1).encode("latin-1")
+    j = _write_case(tmp_path)
+    (tmp_path / "case1.csv").write_bytes(csv_bytes)
+    with pytest.raises(RunFormatError) as ei:
+        read_run(j)
+    assert (ei.value.line, ei.value.column) == (5, 16) and "0xb0 is not UTF-8" in str(ei.value)
+    meta = json.dumps(_base_meta(), indent=2).replace('"crafted"', '"cr\u00e9e"').encode("latin-1")
+    (tmp_path / "case1.csv").write_text(_BASE_CSV)
+    j.write_bytes(meta)
+    with pytest.raises(RunFormatError) as ei:
+        read_run(j)
+    assert Path(ei.value.path).name == "case1.json" and ei.value.line == _line_of(meta.decode("latin-1"), "source")
+    # A level far above the tank (2.2 m high): its CSV row.
+    level = "t_s,p_v_Pa,T_v_K,T_l_K,H_l_m\n0,480000,32.0,20.09,1.4\n10,481000,32.0,20.09,50\n"
+    m = _base_meta()
+    m["noise_std"]["H_l"] = 0.001
+    with pytest.raises(RunFormatError) as ei:
+        read_run(_write_case(tmp_path, meta=m, csv_text=level))
+    assert (Path(ei.value.path).name, ei.value.line, ei.value.column) == ("case1.csv", 3, "H_l_m")
+    assert "above 1.5 times the tank's inner height" in str(ei.value)
+    # A span only a wrong time unit makes: by duration_s, or by the last time stamp.
+    from tankode.run_io import MAX_SPAN_S
+
+    m = _base_meta()
+    m["duration_s"] = 2 * MAX_SPAN_S
+    with pytest.raises(RunFormatError, match="duration_s.*beyond 1e\\+09 s"):
+        read_run(_write_case(tmp_path, meta=m))
+    del m["duration_s"]
+    with pytest.raises(RunFormatError) as ei:
+        read_run(_write_case(tmp_path, meta=m, csv_text=_BASE_CSV + "1e300,,,20.1,,\n"))
+    assert (ei.value.line, ei.value.column) == (7, "t_s") and "time unit" in str(ei.value)
+
+
 def test_json_syntax_error(tmp_path):
     text = json.dumps(_base_meta(), indent=2).replace('"source"', '"source" "x",', 1)
     e = _json_error(tmp_path, json_text=text)

@@ -855,7 +855,7 @@ def audit_run(run: Run, config: AuditConfig = AuditConfig(), wall_heat_capacity_
 
     missing = [c for c in ("p_v_Pa", "T_v_K", "T_l_K") if c not in run.observations.measured_channels]
     if missing:
-        raise ValueError(f"run {run.name!r}: the inventory audit needs p_v_Pa, T_v_K and T_l_K measured, not {missing}")
+        raise ValueError(f"run {run.name!r}: the inventory audit needs p_v_Pa, T_v_K and T_l_K measured; {missing} are not")
     geometry = run.tank.geometry()
     V_tank = float(geometry.volume_m3)
     if wall_heat_capacity_J_per_K is None:

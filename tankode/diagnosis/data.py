@@ -85,7 +85,11 @@ class Observed:
 
 @dataclass(frozen=True)
 class HoldOutTail:
-    """Hold out the last ``fraction`` of each run's duration; calibrate on the rest.
+    """Hold out the last ``fraction`` of each run's measured span; calibrate on the rest.
+
+    The span runs from the run's start to its last measured sample: a run whose declared
+    duration reaches past its data (inputs scheduled beyond the last reading) holds out the tail
+    of what was measured, not an empty stretch.
 
     Attributes:
         fraction: held-out share of each run, in (0, 0.8]; 0.3 keeps 70 % for calibration
@@ -100,7 +104,9 @@ class HoldOutTail:
 
     def folds(self, fleet: Fleet, obs: Observed) -> list[tuple[np.ndarray, np.ndarray]]:
         """One ``(train, heldout)`` pair of ``(env, T)`` boolean masks."""
-        t_split = np.array([r.t0_s + (1 - self.fraction) * (r.t_end_s - r.t0_s) for r in fleet.runs])
+        measured = obs.measured.any(-1)  # (env, T)
+        last = [float(obs.t_s[m].max()) if m.any() else r.t_end_s for r, m in zip(fleet.runs, measured)]
+        t_split = np.array([r.t0_s + (1 - self.fraction) * (t1 - r.t0_s) for r, t1 in zip(fleet.runs, last)])
         train = obs.t_s[None, :] <= t_split[:, None]
         return [(train, ~train)]
 

@@ -102,6 +102,8 @@ def bootstrap_gain(base_terms, ext_terms, n_boot: int = 2000, seed: int = 0, lev
     (ssb, nnb), (sse, nne) = base_terms, ext_terms
     Lb, _ = loss_from_terms(ssb, nnb)
     Le, _ = loss_from_terms(sse, nne)
+    if not Lb > 0:
+        raise ValueError("the held-out part has no observations to judge a gain on")
     gain = 1.0 - Le / Lb
     rng = np.random.default_rng(seed)
     n = len(ssb)

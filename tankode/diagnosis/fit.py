@@ -106,7 +106,9 @@ def fit(problem: Problem, params: list[FreeParam], x0: np.ndarray, train: np.nda
     sel = train[:, :, None] & problem.obs.measured  # (env, T, 5)
     n_data = int(sel.sum())
     if n_data <= len(params):
-        raise ValueError(f"{n_data} training observations cannot determine {len(params)} parameters")
+        runs = ", ".join(repr(n) for n in problem.obs.run_names)
+        raise ValueError(f"run {runs}: {n_data} calibration readings cannot determine {len(params)} parameters "
+                         f"({', '.join(p.name for p in params)}); the run is too short or too sparsely measured")
     start = problem.n_simulations
     cache: dict[bytes, np.ndarray] = {}
 
