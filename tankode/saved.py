@@ -34,6 +34,7 @@ def closure_spec(closure) -> dict:
     if isinstance(closure, MLPClosure):
         cfg = asdict(closure.config)
         cfg["features"] = list(cfg["features"])
+        cfg["clamped_features"] = list(cfg["clamped_features"])
         cfg["hidden"] = list(cfg["hidden"])
         cfg["h_ref_W_m2K"] = list(cfg["h_ref_W_m2K"])
         return {"type": "MLPClosure", "config": cfg}
@@ -55,6 +56,7 @@ def closure_from_spec(spec: dict):
         # Models saved before the feature set became configurable used the default eight inputs.
         cfg["features"] = tuple(cfg.get("features", FEATURE_NAMES))
         cfg.setdefault("base", "constant")  # models saved before the residual agent had the constant base
+        cfg["clamped_features"] = tuple(cfg.get("clamped_features", ()))  # every feature faded before the clamp
         cfg["hidden"] = tuple(cfg["hidden"])
         cfg["h_ref_W_m2K"] = tuple(cfg["h_ref_W_m2K"])
         return MLPClosure(MLPConfig(**cfg))

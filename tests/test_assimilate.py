@@ -166,11 +166,14 @@ def test_config_round_trip_and_validation():
     # ...and on the paper's eight inputs.
     assert cfg.agent().config.features == FEATURE_NAMES
     old = json.loads(AssimilationConfig().to_json())
-    del old["agent_domain_margin"], old["agent_features"]
+    del old["agent_domain_margin"], old["agent_features"], old["agent_clamped_features"]
     assert AssimilationConfig.from_json(json.dumps(old)).agent_domain_margin is None
+    assert AssimilationConfig.from_json(json.dumps(old)).agent_clamped_features == ()  # all faded before the clamp
     assert AssimilationConfig.from_json(json.dumps(old)).agent_features == FEATURE_NAMES
-    assert AssimilationConfig().agent(seed=4).config == MLPConfig(features=OPERATION_FEATURES, seed=4, base="natural",
-                                                                  domain_margin=0.1)
+    assert AssimilationConfig().agent(seed=4).config == MLPConfig(
+        features=OPERATION_FEATURES, seed=4, base="natural", domain_margin=0.1,
+        clamped_features=("Pr_v", "Pr_l", "R_over_H", "lnGr_wv", "lnGr_wl", "lnGr_vl"))
+    assert cfg.agent().config.clamped_features == ()
     assert AssimilationConfig(agent_features=list(EXTENDED_FEATURES)).agent_features == EXTENDED_FEATURES
     with pytest.raises(ValueError, match="agent_features"):
         AssimilationConfig(agent_features=("Pr_v", "no_such_input"))

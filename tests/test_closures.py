@@ -278,6 +278,45 @@ def test_the_learned_correction_fades_to_the_base_outside_the_seen_box_and_only_
     assert float(gated.seen_hi[0]) == pytest.approx(float(f_seen[0, 0]) + 0.05, abs=1e-15)
 
 
+def test_a_clamped_state_feature_carries_the_nearest_seen_correction_while_an_operation_fades():
+    from tankode.closures import STATE_FEATURES
+
+    margin = 0.1
+    config = MLPConfig(domain_margin=margin, clamped_features=tuple(f for f in FEATURE_NAMES if f in STATE_FEATURES))
+    assert config.clamped_features == ("Pr_v", "Pr_l", "R_over_H", "lnGr_wv", "lnGr_wl", "lnGr_vl")
+    clamped, free = _trained(config), _trained(MLPConfig())
+    f_seen = clamped.features(_inputs(T_v=28.0, T_w=26.0, T_l=20.0, n=1))
+    clamped.extend_domain(torch.cat([f_seen - 0.05, f_seen + 0.05]))
+    log_base = torch.zeros(1, 4, dtype=torch.float64)
+    assert torch.equal(clamped.log_theta(f_seen, log_base), free.log_theta(f_seen, log_base))  # inside: unchanged
+    # lnGr_wv (a state) far beyond the box: the network sees the box's edge, no fade.
+    f_state = f_seen.clone()
+    f_state[0, 4] += 0.05 + 1.0
+    edge = f_seen.clone()
+    edge[0, 4] += 0.05
+    got = clamped.log_theta(f_state, log_base)
+    assert torch.allclose(got, free.log_theta(edge, log_base), rtol=1e-12, atol=0)
+    assert got.abs().min() > 1e-3  # the learned correction is carried, not dropped
+    # Re_1e4 (an operation) beyond the box fades as before, on top of the clamped state.
+    f_both = f_state.clone()
+    f_both[0, 3] += 0.05 + 0.12
+    edge_op = edge.clone()
+    edge_op[0, 3] = f_both[0, 3]
+    expected = math.exp(-(0.12 / margin) ** 2) * free.log_theta(edge_op, log_base)
+    assert torch.allclose(clamped.log_theta(f_both, log_base), expected, rtol=1e-12, atol=0)
+    # Smooth enough to train through: gradcheck away from the box's edges.
+    points = (f_seen + torch.tensor([-0.3, -0.01, 0.02, 0.3], dtype=torch.float64)[:, None]).requires_grad_(True)
+    torch.autograd.gradcheck(lambda z: clamped.log_theta(z, torch.zeros(4, 4, dtype=torch.float64)), (points,))
+    with pytest.raises(ValueError, match="clamped_features"):
+        MLPConfig(clamped_features=("fill",))  # not among the features
+    from trainers.assimilate import AssimilationConfig
+
+    assert AssimilationConfig().agent().config.clamped_features == tuple(
+        f for f in AssimilationConfig.agent_features if f in STATE_FEATURES)
+    with pytest.raises(ValueError, match="agent_clamped_features"):
+        AssimilationConfig(agent_clamped_features=("lnGr_xx",))
+
+
 def test_operation_turnovers_are_zero_at_rest_and_an_unseen_fill_returns_the_base():
     from tankode.closures import OPERATION_FEATURES
     from tankode.closures.mlp import OPERATION_TIME_S
@@ -317,11 +356,11 @@ def test_the_fade_is_smooth_across_the_box_edge_gradcheck():
 def test_the_seen_box_is_saved_with_the_agent(tmp_path):
     from tankode.saved import load_model, save_model
 
-    gated = _trained(MLPConfig(domain_margin=0.1))
+    gated = _trained(MLPConfig(domain_margin=0.1, clamped_features=("lnGr_wv",)))
     f = gated.features(_inputs(n=1))
     gated.extend_domain(torch.cat([f - 0.01, f + 0.01]))
     loaded = load_model(save_model(tmp_path / "m", gated, "ParaHydrogen")).closure
-    assert loaded.config.domain_margin == 0.1
+    assert loaded.config.domain_margin == 0.1 and loaded.config.clamped_features == ("lnGr_wv",)
     assert torch.equal(loaded.seen_lo, gated.seen_lo) and torch.equal(loaded.seen_hi, gated.seen_hi)
     far = _inputs(T_v=40.0, T_w=21.0, A0=0.02, f=0.7, n=1)
     assert torch.equal(loaded(far), gated(far)) and not torch.allclose(loaded(far), _trained(MLPConfig())(far))

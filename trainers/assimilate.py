@@ -55,7 +55,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tankode.closures import FEATURE_NAMES, OPERATION_FEATURES, THETA_NAMES, MLPClosure, MLPConfig
+from tankode.closures import FEATURE_NAMES, OPERATION_FEATURES, STATE_FEATURES, THETA_NAMES, MLPClosure, MLPConfig
 from tankode.errors import SimulationError
 from tankode.fleet import Fleet, sampling_interval_s
 from tankode.forcing import Forcing
@@ -189,6 +189,11 @@ class AssimilationConfig:
             and after it. 0.1 is a factor of about 20 in a Grashof number
             (``ln(Gr + 1) / 30``), a tenth of the fill, or a flow moving 1 % of its phase per
             hour. None: no fade (the paper's agent).
+        agent_clamped_features: features a fresh agent projects onto its seen box instead of
+            fading over (``MLPConfig.clamped_features``; those of them among ``agent_features``).
+            The default, ``STATE_FEATURES``, clamps the tank's state and fades its operations, so a
+            repeated operation at a state a little beyond the seen ones keeps what the stream
+            taught; measured in ``experiments/README.md``, section 5. Empty: every feature fades.
         agent_features: a fresh agent's input features (``MLPConfig.features``). The default,
             ``OPERATION_FEATURES``, adds the four operations' turnovers to the paper's eight, so
             that a fill, a drain, a vent or an injection the stream has not shown lies outside
@@ -229,6 +234,7 @@ class AssimilationConfig:
     carry_over: str = "validated"
     agent_base: str = "natural"
     agent_domain_margin: float | None = 0.1
+    agent_clamped_features: tuple[str, ...] = STATE_FEATURES
     agent_features: tuple[str, ...] = OPERATION_FEATURES
 
     def __post_init__(self):
@@ -239,6 +245,12 @@ class AssimilationConfig:
         if not (self.start_prior_sigmas > 0 and math.isfinite(self.start_prior_sigmas)):
             raise ValueError(f"start_prior_sigmas must be a positive number of noise sigmas, got {self.start_prior_sigmas}")
         object.__setattr__(self, "agent_features", tuple(self.agent_features))  # lists from JSON or a CLI
+        object.__setattr__(self, "agent_clamped_features", tuple(self.agent_clamped_features))
+        if self.agent_clamped_features:  # names the agent may not use now, but none it cannot
+            try:
+                MLPConfig(features=self.agent_clamped_features)
+            except ValueError as e:
+                raise ValueError(f"agent_clamped_features: {e}") from None
         self._agent_config(seed=self.seed)  # the agent's settings, validated where they are defined
         if self.carry_over not in CARRY_OVERS:
             raise ValueError(f"carry_over must be one of {CARRY_OVERS}, got {self.carry_over!r}")
@@ -287,7 +299,8 @@ class AssimilationConfig:
     def _agent_config(self, seed: int) -> MLPConfig:
         try:
             return MLPConfig(features=self.agent_features, seed=seed, base=self.agent_base,
-                             domain_margin=self.agent_domain_margin)
+                             domain_margin=self.agent_domain_margin,
+                             clamped_features=tuple(f for f in self.agent_features if f in self.agent_clamped_features))
         except ValueError as e:
             raise ValueError(f"the agent's settings (agent_features, agent_base, agent_domain_margin): {e}") from None
 
@@ -313,6 +326,7 @@ class AssimilationConfig:
         fields (e.g. ``window_s``, ``iters``). The studies that reproduce the paper's figures on its own cases use it."""
         return replace(AssimilationConfig(mode="fixed", integrator="dopri5", gradient=Adjoint(), wall="lumped", boiling="bulk",
                                           agent_base="constant", carry_over="integrable", agent_domain_margin=None,
+                                          agent_clamped_features=(),
                                           agent_features=FEATURE_NAMES, update_budget_s=math.inf,
                                           rtol=1e-6, atol=1e-8),
                        **changes)
@@ -341,6 +355,7 @@ class AssimilationConfig:
         d.setdefault("boiling", "bulk")  # the bulk's flash alone before the boiling share existed
         d.setdefault("carry_over", "integrable")  # before the check existed
         d.setdefault("agent_domain_margin", None)  # agents extrapolated freely before the fade existed
+        d["agent_clamped_features"] = tuple(d.get("agent_clamped_features", ()))  # all faded before the clamp
         budget = d.get("update_budget_s", "inf")  # "inf" as to_json writes it; unbounded before the budget existed
         d["update_budget_s"] = None if budget is None else float(budget)
         d.setdefault("agent_features", FEATURE_NAMES)  # the paper's eight before the operations existed

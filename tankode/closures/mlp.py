@@ -102,14 +102,30 @@ section 5). With a margin, the agent keeps the box of the features it was traine
 (``seen_lo``, ``seen_hi``: buffers saved with the weights) and its learned correction fades
 to the base outside it::
 
-    ln h_j = ln base_j(s) + span * g(x) * tanh(o_j),   g(x) = exp(-sum_i (d_i / margin)^2),
+    ln h_j = ln base_j(s) + span * g(x) * tanh(o_j(P x)),   g(x) = exp(-sum_i (d_i / margin)^2),
 
 with ``d_i`` how far feature ``i`` lies outside ``[seen_lo_i, seen_hi_i]`` (0 inside, where
-``g = 1`` and nothing changes). An agent that has seen nothing is not gated; the assimilation
-widens the box with each window's trajectory before and after training on it
-(``extend_domain``). Limits: a box, not the seen inputs' joint distribution (a combination
-of values each seen apart counts as seen), and the base must be a physical closure for the
-fade to mean anything (the ``"constant"`` base fades to mid-range constants).
+``g = 1`` and nothing changes). Two kinds of feature leave the box differently
+(``MLPConfig.clamped_features``):
+
+* an *operation* (a sloshing wave, a turnover: ``Re_1e4``, ``f_over_f11``, ``lnRe_wave``,
+  ``lnTurn_*``) the stream has not shown is another regime of heat transfer, which the base
+  describes better than a factor learned without it: these features fade (they count in ``d``);
+* a *state* beyond the seen ones (``STATE_FEATURES``: a warmer ullage on the second warm-gas
+  injection, a fuller tank, another Grashof number) continues a regime the stream has shown:
+  these features are clamped, ``P`` projects them onto the box, so the network is evaluated at
+  the nearest seen state and its correction is carried, not dropped. Fading on them too sent a
+  tank whose law is far from the base (the printed correlations hold the ullage to the dry wall,
+  ``h_wv`` 13-18 times the base's) back to the base as soon as a repeated operation met a
+  slightly other state (measured on another simulator's runs, ``experiments/README.md``,
+  section 5).
+
+An agent that has seen nothing is not gated; the assimilation widens the box with each window's
+trajectory before and after training on it (``extend_domain``). Limits: a box, not the seen
+inputs' joint distribution (a combination of values each seen apart counts as seen); a clamped
+state carries the nearest seen correction however far away it lies; and the base must be a
+physical closure for the fade to mean anything (the ``"constant"`` base fades to mid-range
+constants).
 
 Architecture: 8 -> 16 -> 16 -> 4, tanh, 484 weights (paper); 548 with the operations, 500 with the
 extended inputs.
@@ -136,6 +152,10 @@ OPERATION_FEATURES = (*FEATURE_NAMES, "lnTurn_v_in", "lnTurn_v_out", "lnTurn_l_i
 EXTENDED_FEATURES = (*_PAPER_SEVEN, "lnRe_wave", "lnGr_li_signed")  # nine inputs, 500 weights (docstring)
 N_FEATURES = len(FEATURE_NAMES)
 INPUT_SETS = {"paper": FEATURE_NAMES, "operations": OPERATION_FEATURES, "extended": EXTENDED_FEATURES}  # by name
+# Features of the tank's state and shape, not of its operations: clamped to the seen box, not faded
+# (module docstring, "Outside the seen inputs").
+STATE_FEATURES = ("Pr_v", "Pr_l", "R_over_H", "lnGr_wv", "lnGr_wl", "lnGr_vl", "lnGr_li_signed", "dT_wv_signed",
+                  "dT_vi_signed", "fill")
 
 
 @dataclass(frozen=True)
@@ -157,6 +177,9 @@ class MLPConfig:
         domain_margin: distance in feature units over which the learned correction fades to
             the base outside the inputs seen in training (module docstring, "Outside the seen
             inputs"); None: no fade (the paper's agent, which extrapolates freely).
+        clamped_features: features among ``features`` that are projected onto the seen box
+            instead of fading (module docstring; ``STATE_FEATURES`` are the tank's state). Empty:
+            every feature fades. Without a ``domain_margin`` there is no box and nothing is clamped.
     """
 
     features: tuple[str, ...] = FEATURE_NAMES
@@ -166,6 +189,7 @@ class MLPConfig:
     seed: int = 0
     base: str = "natural"
     domain_margin: float | None = None
+    clamped_features: tuple[str, ...] = ()
 
     def __post_init__(self):
         unknown = [f for f in self.features if f not in _FEATURES]
@@ -183,6 +207,9 @@ class MLPConfig:
         if self.domain_margin is not None and not (math.isfinite(self.domain_margin) and self.domain_margin > 0):
             raise ValueError(f"MLPConfig.domain_margin must be None or finite and > 0 (feature units), "
                              f"got {self.domain_margin}")
+        if set(self.clamped_features) - set(self.features) or len(set(self.clamped_features)) != len(self.clamped_features):
+            raise ValueError(f"MLPConfig.clamped_features must be distinct names among its features {self.features}, "
+                             f"got {self.clamped_features}")
 
 
 def _ln_gr(beta: Tensor, dT: Tensor, nu: Tensor, R: Tensor) -> Tensor:
@@ -276,6 +303,9 @@ class MLPClosure(Closure):
             n = len(config.features)
             self.register_buffer("seen_lo", torch.full((n,), math.inf, dtype=torch.float64))
             self.register_buffer("seen_hi", torch.full((n,), -math.inf, dtype=torch.float64))
+        # (n_features,) True where a feature is clamped to the box rather than faded over.
+        self.register_buffer("clamped", torch.tensor([f in config.clamped_features for f in config.features]),
+                             persistent=False)
 
     def features(self, x: ClosureInputs) -> Tensor:
         """The agent's scaled input features ``(env, n_features)`` at ``x`` (module docstring)."""
@@ -305,13 +335,16 @@ class MLPClosure(Closure):
         if self.config.domain_margin is None or not bool((self.seen_lo <= self.seen_hi).all()):
             return None
         outside = torch.relu(self.seen_lo - features) + torch.relu(features - self.seen_hi)
+        outside = torch.where(self.clamped, 0.0, outside)
         return torch.exp(-((outside / self.config.domain_margin) ** 2).sum(-1, keepdim=True))
 
     def _correction(self, features: Tensor) -> Tensor:
-        """``g(x) tanh(o)`` ``(..., 4)``: the learned correction in units of ``span``."""
-        c = torch.tanh(self.net(features))
+        """``g(x) tanh(o(P x))`` ``(..., 4)``: the learned correction in units of ``span``."""
         g = self.gate(features)
-        return c if g is None else g * c
+        if g is None:
+            return torch.tanh(self.net(features))
+        nearest = torch.where(self.clamped, torch.clamp(features, self.seen_lo, self.seen_hi), features)
+        return g * torch.tanh(self.net(nearest))
 
     def log_base(self, x: ClosureInputs) -> Tensor:
         """``ln`` of the base coefficients ``(env, 4)`` at ``x`` (the untrained agent's closure)."""
@@ -338,4 +371,4 @@ class MLPClosure(Closure):
 
 
 __all__ = ["MLPClosure", "MLPConfig", "BASES", "mlp_features", "FEATURE_NAMES", "OPERATION_FEATURES",
-           "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES", "OPERATION_TIME_S"]
+           "STATE_FEATURES", "EXTENDED_FEATURES", "INPUT_SETS", "N_FEATURES", "OPERATION_TIME_S"]
