@@ -374,6 +374,9 @@ def test_cache_round_trip(surrogate, cache_dir, monkeypatch):
     # Anything in the key changes the file name.
     assert cache_mod.cache_path(FLUID, Domain(), SurrogateConfig(seed=1)) != path
     assert cache_mod.cache_path(FLUID, Domain(T_v_max_K=60.0), SurrogateConfig()) != path
+    # ...and so does the fitting code: a file fitted by another version of it is not read.
+    monkeypatch.setattr(cache_mod, "CODE_DIGEST", "another-fit-code")
+    assert cache_mod.cache_path(FLUID, Domain(), SurrogateConfig()) != path
 
 
 def test_unreadable_cache_file_raises(cache_dir, monkeypatch, tmp_path):

@@ -1,8 +1,11 @@
 """Disk cache and in-process memo of fitted surrogates, so that import and simulation never refit.
 
 File: ``$TANKODE_CACHE_DIR`` (else ``~/.cache/tankode``) / ``surrogate-<fluid>-<hash>.pt``, the
-hash covering the fluid, ``Domain``, ``SurrogateConfig``, the CoolProp version and the file
-format version: any change to those refits. Files hold only tensors and plain python values
+hash covering the fluid, ``Domain``, ``SurrogateConfig``, the CoolProp version, the file
+format version and the source of the property modules (``tankode/properties/*.py``): any change
+to those refits, so an upgraded tankode never reads a surrogate fitted by older fitting code
+under the same settings (such a file had given a vapour pressure error of 5.7e-4 where a fresh
+fit gives 7.4e-6). Files hold only tensors and plain python values
 (``torch.save`` of ``Surrogate.state()``) and are read with ``torch.load(weights_only=True)``,
 which refuses to unpickle arbitrary objects. Writes go to a temporary file then ``os.replace``,
 so a crashed or concurrent fit never leaves a truncated cache file behind.
@@ -28,6 +31,10 @@ from .fit import FORMAT_VERSION, fit_surrogate
 from .model import Surrogate
 
 _MEMO: dict[tuple, Surrogate] = {}
+# The fitting code's identity: the property modules' source (this cache module's own aside).
+CODE_DIGEST = hashlib.sha256(b"".join(
+    p.name.encode() + p.read_bytes() for p in sorted(Path(__file__).parent.glob("*.py")) if p.name != "cache.py"
+)).hexdigest()[:16]
 
 
 def cache_dir() -> Path:
@@ -37,10 +44,11 @@ def cache_dir() -> Path:
 
 
 def cache_key(fluid_name: str, domain: Domain, config: SurrogateConfig) -> str:
-    """Hex digest identifying a fit: fluid, domain, config, CoolProp version, format version."""
+    """Hex digest identifying a fit: fluid, domain, config, CoolProp version, format version, and
+    the property modules' source (``CODE_DIGEST``)."""
     payload = {
         "fluid": fluid_name, "domain": domain.as_dict(), "config": config.as_dict(),
-        "coolprop": CoolProp.__version__, "format": FORMAT_VERSION,
+        "coolprop": CoolProp.__version__, "format": FORMAT_VERSION, "code": CODE_DIGEST,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
 
