@@ -527,15 +527,19 @@ def main(argv=None) -> int:
         print(f"tankode {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # noqa: BLE001 - every failure becomes one line and exit code 2 (describe_error)
-        print(f"tankode {args.command}: error: {_naming_the_runs(describe_error(err), args)}", file=sys.stderr)
+        print(f"tankode {args.command}: error: {_naming_the_runs(err, args)}", file=sys.stderr)
         return _EXIT_ERROR
 
 
-def _naming_the_runs(message: str, args) -> str:
-    """``message`` led by the run files the command was given, unless it names one already (a
-    failure deep in the properties or the solver knows the state, not the file)."""
+def _naming_the_runs(err: BaseException, args) -> str:
+    """``describe_error(err)`` led by the run files the command was given, unless it names a file
+    already (a format error names its own; a failure deep in the properties or the solver knows
+    the state, not the file)."""
+    from .run import RunFormatError
+
+    message = describe_error(err)
     given = list(getattr(args, "runs", None) or []) or ([args.run] if getattr(args, "run", None) else [])
-    if not given or any(Path(p).name in message for p in given):
+    if not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in given):
         return message
     return f"{', '.join(given)}: {message}"
 

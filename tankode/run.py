@@ -79,6 +79,9 @@ _P_MIN_PA, _P_MAX_PA = 1e3, 1e8
 _T_MAX_K = 1000.0
 _H_MAX_M = 100.0
 LEVEL_ABOVE_TANK = 1.5  # a measured level beyond this share of the tank's inner height is an error
+# s; the longest span a run may cover: decades of storage, far past any test, short of spans
+# (1e300 s) that only a wrong time unit makes and that no simulation or window count can hold.
+MAX_SPAN_S = 1e9
 
 # Column -> (kind, what it is) for the plausibility checks.
 _QUANTITY: dict[str, tuple[str, str]] = {
@@ -659,6 +662,9 @@ class Run:
                 f"(inputs.t_s[0] = {t0!r} s, the start of the run)",
             )
         last = self._last_time_stamp()
+        if last - t0 > MAX_SPAN_S:
+            raise RunValueError("t_s", f"t = {last!r} s lies {last - t0:.3g} s after the start, beyond {_span_limit()}",
+                                t_s=last)
         if self.duration_s is None:
             if last <= t0:
                 raise RunValueError("duration_s", "missing, and there is no time stamp after the start to default it to")
@@ -667,6 +673,8 @@ class Run:
             d = _as_float("duration_s", self.duration_s)
             if d <= 0:
                 raise RunValueError("duration_s", f"duration_s = {d!r} must be > 0")
+            if d > MAX_SPAN_S:
+                raise RunValueError("duration_s", f"duration_s = {d!r} s is beyond {_span_limit()}")
             object.__setattr__(self, "duration_s", d)  # a shorter one than the data: see notes()
         if self.path is not None:
             object.__setattr__(self, "path", str(self.path))
@@ -773,6 +781,10 @@ def _check_columns_plausible(prefix: str, names, t_s: np.ndarray, values: np.nda
         if k is not None:
             problem = _plausibility_problem(name, float(values[k, j]), fluid)
             raise RunValueError(f"{prefix}.{name}", f"at t = {float(t_s[k])!r} s: {problem}")
+
+
+def _span_limit() -> str:
+    return f"{MAX_SPAN_S:.0e} s ({MAX_SPAN_S / 3.156e7:.0f} years): not a tank's run (check the time unit)"
 
 
 @lru_cache(maxsize=None)

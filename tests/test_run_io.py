@@ -17,6 +17,7 @@ from tankode.run import (
     Observations,
     Run,
     RunFormatError,
+    RunValueError,
     TankSpec,
 )
 from tankode.run_io import read_run, read_timeseries_csv, write_run
@@ -345,16 +346,21 @@ def test_undecodable_bytes_absurd_levels_and_spans_name_their_line(tmp_path):
     assert (Path(ei.value.path).name, ei.value.line, ei.value.column) == ("case1.csv", 3, "H_l_m")
     assert "above 1.5 times the tank's inner height" in str(ei.value)
     # A span only a wrong time unit makes: by duration_s, or by the last time stamp.
-    from tankode.run_io import MAX_SPAN_S
+    from tankode.run import MAX_SPAN_S
 
     m = _base_meta()
     m["duration_s"] = 2 * MAX_SPAN_S
     with pytest.raises(RunFormatError, match="duration_s.*beyond 1e\\+09 s"):
         read_run(_write_case(tmp_path, meta=m))
-    del m["duration_s"]
-    with pytest.raises(RunFormatError) as ei:
-        read_run(_write_case(tmp_path, meta=m, csv_text=_BASE_CSV + "1e300,,,20.1,,\n"))
-    assert (ei.value.line, ei.value.column) == (7, "t_s") and "time unit" in str(ei.value)
+    for duration in (None, 60):  # the time stamp is the cause whether or not a short duration is declared
+        m["duration_s"] = duration
+        with pytest.raises(RunFormatError) as ei:
+            read_run(_write_case(tmp_path, meta={k: v for k, v in m.items() if v is not None},
+                                 csv_text=_BASE_CSV + "1e300,,,20.1,,\n"))
+        assert (ei.value.line, ei.value.column) == (7, "t_s") and "time unit" in str(ei.value)
+    with pytest.raises(RunValueError, match="duration_s"):  # a run built in code is held to the same span
+        Run(name="r", fluid="ParaHydrogen", tank=read_run(_write_case(tmp_path)).tank,
+            initial=read_run(_write_case(tmp_path)).initial, duration_s=2 * MAX_SPAN_S)
 
 
 def test_json_syntax_error(tmp_path):
