@@ -28,7 +28,7 @@ from tankode import read_run
 from tankode.cli import main
 from tankode.run_io import write_run
 from tankode.diagnosis import diagnose, write_report
-from tankode.diagnosis.audit import AuditConfig, audit_run, with_audited_wall
+from tankode.diagnosis.audit import AuditConfig, Estimate, audit_run, with_audited_wall
 
 HEAT = ("heat_leak_wall", "heat_leak_liquid", "heat_leak_vapor")
 
@@ -124,6 +124,11 @@ def test_a_wall_heat_capacity_the_run_does_not_state_is_estimated_not_named(noda
     assert not a.wall_capacity_stated and "wall_heat_capacity_error" not in a.hypotheses
     c = a.wall_heat_capacity
     assert abs(c.value - stated) < 3 * c.std and c.std < 0.25 * stated, (c, stated)
+    assert a.wall_capacity_sentence() == f"wall heat capacity (not stated by the run) {c.value:.3g} +- {c.std:.2g} J/K"
+    # a reading at or below zero (a short or quiet run) is no capacity: the report says it was not read
+    for factor in (Estimate(-1.0, 0.3), Estimate(0.2, 0.5)):
+        unread = dataclasses.replace(a, wall_capacity_factor=factor)
+        assert unread.wall_capacity_sentence().startswith("wall heat capacity not stated by the run and not read"), factor
 
 
 def test_simulate_takes_a_wall_heat_capacity_the_run_does_not_state_from_the_audit(nodal, tmp_path, capsys):

@@ -392,6 +392,25 @@ class RunAudit:
         c = self.wall_heat_capacity_J_per_K
         return Estimate(self.wall_capacity_factor.value * c, self.wall_capacity_factor.std * c)
 
+    def wall_capacity_sentence(self) -> str:
+        """The balances' reading of the wall heat capacity in words; "" where they do not read it.
+
+        A stated capacity is read as a factor on it. An unstated one is given in J/K where the
+        reading is positive and within ``WALL_READING_REL_STD``; otherwise the sentence says the
+        balances do not read it (a heat capacity is positive: a reading at or below zero, or this
+        loose, carries no value to report).
+        """
+        if self.wall_capacity_factor is None:
+            return ""
+        f = self.wall_capacity_factor
+        if self.wall_capacity_stated:
+            return f"wall heat capacity {f.value:.3g} +- {f.std:.2g} x stated"
+        c = self.wall_heat_capacity
+        if wall_reading(self) is None:
+            return (f"wall heat capacity not stated by the run and not read by the balances ({c.value:.3g} +- "
+                    f"{c.std:.2g} J/K is no positive reading within {WALL_READING_REL_STD:.0%})")
+        return f"wall heat capacity (not stated by the run) {c.value:.3g} +- {c.std:.2g} J/K"
+
     def finding(self, name: str) -> InventoryFinding | None:
         """The finding called ``name``, or None."""
         return next((f for f in self.findings if f.name == name), None)

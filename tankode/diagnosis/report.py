@@ -194,15 +194,6 @@ def _est(e, scale: float = 1.0, digits: str = ".3g") -> str:
     return f"{e.value * scale:{digits}}{std}"
 
 
-def _wall_capacity(a) -> str:
-    if a.wall_capacity_factor is None:
-        return ""
-    if a.wall_capacity_stated:
-        return f", wall heat capacity {_est(a.wall_capacity_factor)} x stated"
-    c = a.wall_heat_capacity
-    return f", wall heat capacity (not stated by the run) {c.value:.3g} +- {c.std:.2g} J/K"
-
-
 def audit_markdown(d: Diagnosis) -> list[str]:
     """The inventory audit's section: run-wide and per-phase unmetered mass and heat, hypotheses, consistency."""
     L = ["## Inventory audit: what the meters did not see", "",
@@ -214,7 +205,7 @@ def audit_markdown(d: Diagnosis) -> list[str]:
     for a in d.audits:
         L += [f"### {a.run}", "",
               f"Over the run: unmetered mass {_est(a.mass_kg_s, 1e3)} g/s, unmetered heat {_est(a.heat_W)} W"
-              + _wall_capacity(a)
+              + (f", {a.wall_capacity_sentence()}" if a.wall_capacity_sentence() else "")
               + f", liquid temperature offset {_est(a.liquid_offset_K)} K (Birge ratio {a.birge:.2f}).", ""]
         named = [f.sentence for f in a.findings]
         L.append("Findings: " + ("; ".join(named) if named else "nothing unmetered beyond the noise") + ".")
