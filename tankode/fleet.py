@@ -102,26 +102,31 @@ class Fleet:
         )
         return Fleet(runs, geometry, walls, surrogate, CoolPropFluid(fluid_name))
 
-    def on_wide_tier(self, state: Tensor | None = None) -> "Fleet | None":
-        """The same runs on the fluid's wide property tier (``tankode.properties.wide_domain``).
+    def on_next_tier(self, state: Tensor | None = None) -> "Fleet | None":
+        """The same runs on the next property tier that holds ``state`` (``tankode.properties.property_tiers``).
 
-        For a trajectory that leaves the default tier, which the runs' measured states (what
-        ``from_runs`` picks the tier by) do not foresee. None where the fleet is on the wide tier
-        already, or where it would not hold ``state`` either (``(..., 7+)`` tank states, e.g. a
-        ``StateLeftDomain``'s: an ullage read colder than saturation leaves both tiers alike).
+        For a trajectory that leaves its tier, which the runs' measured states (what
+        ``from_runs`` picks the tier by) do not foresee. Only tiers after the fleet's own, in
+        their order (default, wide, low), are tried, so a search for one never returns to a
+        tier already left. None where no later tier holds ``state`` (``(..., 7+)`` tank states,
+        e.g. a ``StateLeftDomain``'s: an ullage read colder than saturation leaves every tier
+        alike) or the fleet's domain is none of the tiers (a surrogate given by the caller).
         """
-        from .properties import WIDE_CONFIG, load_surrogate, wide_domain
+        from .properties import load_surrogate, property_tiers
 
-        wide = wide_domain(self.fluid.fluid_name)
-        if self.fluid.domain == wide:
+        tiers = property_tiers(self.fluid.fluid_name)
+        domains = [d for d, _, _ in tiers]
+        if self.fluid.domain not in domains:
             return None
-        surrogate = load_surrogate(self.fluid.fluid_name, wide, WIDE_CONFIG)
-        if state is not None:
-            s = state.detach().reshape(-1, state.shape[-1])
-            if not (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
-                    and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
-                return None
-        return dataclasses.replace(self, fluid=surrogate)
+        for domain, config, _ in tiers[domains.index(self.fluid.domain) + 1:]:
+            surrogate = load_surrogate(self.fluid.fluid_name, domain, config)
+            if state is not None:
+                s = state.detach().reshape(-1, state.shape[-1])
+                if not (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
+                        and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
+                    continue
+            return dataclasses.replace(self, fluid=surrogate)
+        return None
 
     def wall_notes(self) -> tuple[str, ...]:
         """One sentence per tank whose wall heat capacity the run does not state: what was taken."""

@@ -105,8 +105,8 @@ def simulate(
     Raises:
         SimulationError: the solver failed or the tank reached a state it cannot go on from (an
             empty ullage, a dry tank): the message names the run, the cause, the time and the
-            state. A trajectory that leaves the default property domain is simulated again on
-            the wide one (``tankode.properties.wide_domain``, with a note); beyond that,
+            state. A trajectory that leaves its property domain is simulated again on the next
+            tier that holds it (``Fleet.on_next_tier``, with a note); beyond them all,
             ``StateLeftDomain``.
     """
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
@@ -115,14 +115,15 @@ def simulate(
     try:
         states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
     except StateLeftDomain as err:
-        # A run that leaves the default domain gets the wide one (the trajectory is not known
-        # before it is simulated); one given a surrogate, or already on the wide one, does not.
-        wide = None if surrogate is not None or isinstance(runs, Fleet) else fleet.on_wide_tier(err.state)
-        if wide is None:
+        # A run that leaves its tier gets the next that holds it (the trajectory is not known
+        # before it is simulated); one given a surrogate or a fleet does not.
+        d0 = fleet.fluid.domain
+        wider = None if surrogate is not None or isinstance(runs, Fleet) else fleet.on_next_tier(err.state)
+        if wider is None:
             raise
-        fleet, d = wide, wide.fluid.domain
-        notes = (f"the trajectory left the default property domain at t = {err.t_s:.6g} s; simulated on the wide "
-                 f"one ({d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa)",)
+        fleet, d = wider, wider.fluid.domain
+        notes = (f"the trajectory left the property domain of {d0.p_min_Pa:.4g} to {d0.p_max_Pa:.4g} Pa at "
+                 f"t = {err.t_s:.6g} s; simulated on the one of {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa",)
         states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
     notes += fleet.wall_notes()
     return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))

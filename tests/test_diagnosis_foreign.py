@@ -456,7 +456,7 @@ def test_a_model_that_leaves_the_default_tier_is_searched_again_on_the_wide_one_
     monkeypatch.setattr(importlib.import_module("tankode.diagnosis.diagnose"), "score_tests", failing)
     d = diagnose([run])
     assert tiers[0] != tiers[1] == wide_domain(run.fluid)
-    assert d.dynamic_notes[0].startswith("the model left the default property domain (left the default tier at t = 600")
+    assert d.dynamic_notes[0].startswith("the model left its property domain (left the default tier at t = 600")
     assert d.dynamic_notes[1].startswith("the dynamic search stopped: the solver stalled at t = 1200 s")
     v = d.verdict  # the audit's verdict stands: the leak, named or listed with what carries its enthalpy
     assert v.source == "inventory audit" and "vapor_leak" in (v.name, *v.candidates), v.sentence

@@ -465,17 +465,17 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 return _dynamic_search(fleet, base_closure, fixed_mechanisms, config, inv, audits, audit_notes,
                                        dynamic_notes, start, say)
             except _Stopped as stop:
-                # A model that leaves the default property tier (the runs' measured states do not
+                # A model that leaves its property tier (the runs' measured states do not
                 # foresee its trajectory: another simulator's tank overshot by the calibrated
-                # baseline, a score test's perturbation) gets the wide tier and a fresh search, as
-                # ``simulate`` does; anything else stops the dynamic search, not the diagnosis:
-                # the audit stands.
+                # baseline, a score test's perturbation) gets the next tier that holds it and a
+                # fresh search, as ``simulate`` does; anything else stops the dynamic search, not
+                # the diagnosis: the audit stands.
                 left = isinstance(stop.error, StateLeftDomain) and not given
-                wide = fleet.on_wide_tier(stop.error.state) if left else None
-                if wide is not None:
-                    fleet = wide
-                    dynamic_notes.append(f"the model left the default property domain "
-                                         f"({str(stop.error).splitlines()[0]}); the dynamic search ran again on the wide one")
+                wider = fleet.on_next_tier(stop.error.state) if left else None
+                if wider is not None:
+                    fleet, d = wider, wider.fluid.domain
+                    dynamic_notes.append(f"the model left its property domain ({str(stop.error).splitlines()[0]}); the "
+                                         f"dynamic search ran again on the one of {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa")
                     say(dynamic_notes[-1])
                     continue
                 dynamic_notes.append(f"the dynamic search {stop.stage}: {' '.join(str(stop.error).split())}")

@@ -26,7 +26,7 @@ import torch
 
 from ..errors import BeyondPropertyDomain
 from .config import SurrogateConfig
-from .domain import Domain, covers, default_domain, wide_domain
+from .domain import Domain, covers, default_domain, low_domain, wide_domain
 from .fit import FORMAT_VERSION, fit_surrogate
 from .model import Surrogate
 
@@ -126,8 +126,20 @@ def load_surrogate(fluid_name: str = "ParaHydrogen", domain: Domain | None = Non
 WIDE_CONFIG = SurrogateConfig(n_centres=300, n_train=4000)
 
 
+def property_tiers(fluid_name: str) -> tuple[tuple[Domain, SurrogateConfig, bool], ...]:
+    """The domains tankode fits for ``fluid_name``, in the order a run is matched to them.
+
+    Each entry is ``(domain, config, relative)``, ``relative`` the pressure room of
+    ``domain.covers``: the default tier (storage pressures, the finest fit), the wide tier (2.5 %
+    to 86 % of the critical pressure) and the low tier (a third of the default's lowest pressure
+    up to its highest: a vent below the default that the wide tier does not reach).
+    """
+    return ((default_domain(fluid_name), SurrogateConfig(), False), (wide_domain(fluid_name), WIDE_CONFIG, True),
+            (low_domain(fluid_name), WIDE_CONFIG, True))
+
+
 def surrogate_covering(fluid_name: str, p_Pa=(), T_v_K=(), T_l_K=()) -> Surrogate:
-    """The cached surrogate whose domain holds the given states: the default, else the wide tier.
+    """The cached surrogate of the first of ``property_tiers`` whose domain holds the given states.
 
     Args:
         fluid_name: CoolProp fluid name.
@@ -135,17 +147,16 @@ def surrogate_covering(fluid_name: str, p_Pa=(), T_v_K=(), T_l_K=()) -> Surrogat
             iterables (``domain.covers``).
 
     Raises:
-        BeyondPropertyDomain: the states lie beyond even the wide domain (naming the range it spans).
+        BeyondPropertyDomain: the states lie beyond every tier (naming the ranges they span).
     """
-    tiers = ((default_domain(fluid_name), SurrogateConfig(), False), (wide_domain(fluid_name), WIDE_CONFIG, True))
+    tiers = property_tiers(fluid_name)
     for domain, config, relative in tiers:
         if covers(domain, p_Pa, T_v_K, T_l_K, relative=relative):
             return load_surrogate(fluid_name, domain, config)
-    d = wide_domain(fluid_name)
-    raise BeyondPropertyDomain(f"the run reaches states beyond tankode's widest {fluid_name} property domain "
-                               f"(pressure {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa, vapour up to {d.T_v_max_K:.4g} K, "
-                               f"liquid down to {d.T_l_min_K:.4g} K, with 5 % of each pressure and of the temperature "
-                               "range to spare)")
+    ranges = " or ".join(f"pressure {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa with vapour up to {d.T_v_max_K:.4g} K and "
+                         f"liquid down to {d.T_l_min_K:.4g} K" for d, _, _ in tiers[1:])
+    raise BeyondPropertyDomain(f"the run reaches states beyond tankode's widest {fluid_name} property domains "
+                               f"({ranges}, with 5 % of each pressure and of the temperature range to spare)")
 
 
 def clear_memo() -> None:
@@ -153,4 +164,4 @@ def clear_memo() -> None:
     _MEMO.clear()
 
 
-__all__ = ["load_surrogate", "surrogate_covering", "WIDE_CONFIG", "save_surrogate", "read_surrogate", "cache_dir", "cache_path", "cache_key", "clear_memo"]
+__all__ = ["load_surrogate", "surrogate_covering", "property_tiers", "WIDE_CONFIG", "save_surrogate", "read_surrogate", "cache_dir", "cache_path", "cache_key", "clear_memo"]

@@ -15,7 +15,7 @@ incompressible), which is why the surrogate's ``contains`` checks (p, T) and not
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from functools import lru_cache
 
 import numpy as np
@@ -248,6 +248,33 @@ def wide_domain(fluid_name: str = "ParaHydrogen") -> Domain:
                   metastable_share=math.floor(0.7 * min(shares) * 1000.0) / 1000.0)
 
 
+# The low tier reaches this share of the default tier's lowest pressure (ParaHydrogen and most
+# fluids: 0.233 bar), up to the default's highest: a vent below 0.7 bar of a fluid whose wide tier
+# starts above it (2.5 % of p_crit is 1.15 bar for methane, 0.85 bar for nitrogen). One
+# saturation polynomial does not hold from there up to the wide tier's top (methane 0.35 to 40
+# bar: 8e-4 at degree 20, against its 1e-4 tolerance); over this range it does.
+LOW_P_MIN_OF_DEFAULT = 1.0 / 3.0
+
+
+def low_domain(fluid_name: str = "ParaHydrogen") -> Domain:
+    """The low-pressure tier for ``fluid_name``: the default tier reaching down to a third of its
+    lowest pressure (no lower than 1.05 times the triple point), the liquid down to 40 % of the
+    way from the triple point to saturation there (as the wide tier), the default's top.
+
+    For a run vented or drained below the default tier that the wide tier does not hold
+    (``surrogate_covering`` tries default, wide, then low). Fitted with ``WIDE_CONFIG``: held-out
+    errors of 1e-4 or less in p, T and saturation for hydrogen, nitrogen, oxygen, methane, argon.
+    """
+    d = default_domain(fluid_name)
+    lim = _fluid_limits(fluid_name)
+    p_min = max(LOW_P_MIN_OF_DEFAULT * d.p_min_Pa, _P_MIN_OF_TRIPLE * lim["p_triple"])
+    margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min)),
+                 _max_metastable_K(fluid_name, float(d.p_max_Pa)))
+    return replace(d, p_min_Pa=p_min,
+                   T_l_min_K=lim["T_triple"] + 0.4 * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"]),
+                   metastable_K=math.floor(margin * 100.0) / 100.0)
+
+
 def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05, relative: bool = False) -> bool:
     """Whether ``domain`` holds the pressures and temperatures a run reaches, with room to spare.
 
@@ -272,4 +299,4 @@ def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05, relative: bo
     return bool(ok)
 
 
-__all__ = ["Domain", "default_domain", "wide_domain", "covers"]
+__all__ = ["Domain", "default_domain", "wide_domain", "low_domain", "covers"]
