@@ -244,6 +244,20 @@ def test_a_run_at_10_bar_simulates_on_the_wide_property_domain(case3, tmp_path):
     assert p.max() > 8e5
 
 
+@pytest.mark.slow
+def test_a_methane_tank_vented_below_the_default_tier_simulates_on_the_low_one(tmp_path, capsys):
+    # cryo_sim's random_701: 45 m3 of methane vented from 1.5 to 0.66 bar, below the default tier
+    # (0.7 bar) and the wide one (from 1.15 bar for methane); the low tier holds it.
+    sim = Path(__file__).parent / "cryo_sim.py"
+    subprocess.run([sys.executable, str(sim), "random_701", "--noise", "low", "--out", str(tmp_path / "r"),
+                    "--name", "vent"], check=True, capture_output=True)
+    run = read_run(tmp_path / "r" / "vent.json")
+    assert np.nanmin(run.observations.channel("p_v_Pa")[1]) < 0.7e5
+    assert main(["simulate", str(tmp_path / "r" / "vent.json"), "--out", str(tmp_path / "o")]) == 0
+    p = read_run(tmp_path / "o" / "vent.json").observations.channel("p_v_Pa")[1]
+    assert p.min() < 0.8e5, p.min()
+
+
 @needs_mhtb
 @pytest.mark.parametrize("name", ["P263981D", pytest.param("P263981T", marks=pytest.mark.slow)])
 def test_default_assimilate_and_predict_complete_on_the_stiff_real_tanks(tmp_path, capsys, name):
