@@ -429,9 +429,9 @@ def test_the_wide_tier_holds_a_vent_to_half_a_bar_and_the_default_keeps_its_room
 
 def test_a_vent_below_the_default_tier_that_the_wide_tier_misses_is_held_by_the_low_tier():
     """A methane tank vented from 1.5 to 0.66 bar (cryo_sim's random_701): below the default tier
-    (0.7 bar) and the wide one (2.5 % of the critical pressure: 1.15 bar), so it was refused.
-    The low tier, a third of the default's lowest pressure up to its highest, holds it; hydrogen's
-    vent to half a bar still takes the wide tier, which comes first; a run beyond every tier is
+    (0.7 bar) and the wide one (2.5 % of the critical pressure: 1.15 bar). The low tier, a third
+    of the default's lowest pressure up to its highest, holds it; hydrogen's vent to half a bar
+    takes the wide tier, which comes first; a run beyond every tier is
     refused naming the ranges of the wider two."""
     from tankode.errors import BeyondPropertyDomain
     from tankode.properties import low_domain, property_tiers, surrogate_covering, wide_domain
