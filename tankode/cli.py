@@ -532,14 +532,15 @@ def main(argv=None) -> int:
 
 
 def _naming_the_runs(err: BaseException, args) -> str:
-    """``describe_error(err)`` led by the run files the command was given, unless it names a file
-    already (a format error names its own; a failure deep in the properties or the solver knows
-    the state, not the file)."""
+    """``describe_error(err)`` led by the run files the command was given, unless it names a path
+    the command was given already (a format error names its own file, a missing model its
+    directory; a failure deep in the properties or the solver knows the state, not the file)."""
     from .run import RunFormatError
 
     message = describe_error(err)
     given = list(getattr(args, "runs", None) or []) or ([args.run] if getattr(args, "run", None) else [])
-    if not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in given):
+    paths = given + [p for p in (getattr(args, "model", None), getattr(args, "init", None)) if p]
+    if not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in paths):
         return message
     return f"{', '.join(given)}: {message}"
 

@@ -102,6 +102,13 @@ def test_out_naming_a_file_and_a_folder_given_as_the_run(case3, tmp_path, capsys
 
 
 # ------------------------------------------------------------------ refused pickles, resume
+def test_a_missing_model_is_named_alone_not_led_by_the_run(case3, tmp_path, capsys):
+    # The run file leads errors that name no file; one about the model directory names its own.
+    line = _error(capsys, ["predict", str(tmp_path / "none"), str(case3), "--out", str(tmp_path / "p")])
+    assert line.startswith(f"tankode predict: error: {tmp_path / 'none'}"), line
+    assert str(case3) not in line, line
+
+
 def test_refused_pickles_are_one_line_errors_without_the_unsafe_hint(case3, tmp_path, capsys):
     import pickle
 
