@@ -539,8 +539,10 @@ def _naming_the_runs(err: BaseException, args) -> str:
 
     message = describe_error(err)
     given = list(getattr(args, "runs", None) or []) or ([args.run] if getattr(args, "run", None) else [])
-    paths = given + [p for p in (getattr(args, "model", None), getattr(args, "init", None)) if p]
-    if not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in paths):
+    # a model directory by its path as given: its name alone ("model") is a common word
+    models = [str(p) for p in (getattr(args, "model", None), getattr(args, "init", None)) if p]
+    if (not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in given)
+            or any(p in message for p in models)):
         return message
     return f"{', '.join(given)}: {message}"
 
