@@ -268,6 +268,10 @@ def test_fixed_window_start_takes_measured_channels_from_the_data():
     assert abs(float(got[4] - true_obs[4])) < 2e-4
     with pytest.raises(ValueError, match="window_start"):
         AssimilationConfig.paper(window_start="truth")
+    # replay and growing windows have no start to take from the data: refused, not ignored
+    for mode in ("replay", "growing"):
+        with pytest.raises(ValueError, match=f"window_start='data' needs mode='fixed' \\(a {mode} window"):
+            AssimilationConfig(mode=mode, window_start="data")
 
 
 def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():

@@ -113,7 +113,7 @@ class AssimilationConfig:
             physical base (``MLPConfig.base``), whose start is that closure, the learned correction
             stays near 1 where the data do not ask for one (an operating regime not seen yet).
         window_start: "model", "data" or "joint": where a fixed window's initial state comes
-            from (module docstring).
+            from (module docstring); "data" and "joint" need ``mode="fixed"``.
         start_prior_sigmas: with ``window_start="joint"``, the background std of the carried
             state in units of each channel's noise std (1: the carried state is worth one
             sample per channel, so a window's ~60 samples decide the offset).
@@ -286,8 +286,12 @@ class AssimilationConfig:
             raise ValueError(f"integrator must be one of {tuple(_INTEGRATORS)}, got {self.integrator!r}")
         if self.integrator == "rosenbrock" and isinstance(self.gradient, Adjoint):
             raise ValueError("integrator='rosenbrock' has no continuous adjoint: use gradient=Backprop() or Checkpointed()")
-        if self.window_start == "joint" and self.mode != "fixed":
-            raise ValueError("window_start='joint' needs mode='fixed' (a growing window starts from the run's initial state)")
+        if self.window_start != "model" and self.mode != "fixed":
+            # a growing window starts from the run's initial state, a replay window from the state
+            # carried by the segments before it: neither has a start to take from the data
+            raise ValueError(f"window_start={self.window_start!r} needs mode='fixed' (a {self.mode} window starts from "
+                             f"{'the run' if self.mode == 'growing' else 'the carried state'}: "
+                             "use window_start='model' or mode='fixed')")
         if (not isinstance(self.train_mechanisms, tuple) or not all(isinstance(m, str) for m in self.train_mechanisms)
                 or len(set(self.train_mechanisms)) != len(self.train_mechanisms)):
             raise ValueError(f"train_mechanisms must be a tuple of distinct mechanism ids, got {self.train_mechanisms!r}")
