@@ -118,14 +118,12 @@ class Fleet:
         domains = [d for d, _, _ in tiers]
         if self.fluid.domain not in domains:
             return None
+        s = None if state is None else state.detach().reshape(-1, state.shape[-1])
         for domain, config, _ in tiers[domains.index(self.fluid.domain) + 1:]:
             surrogate = load_surrogate(self.fluid.fluid_name, domain, config)
-            if state is not None:
-                s = state.detach().reshape(-1, state.shape[-1])
-                if not (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
-                        and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
-                    continue
-            return dataclasses.replace(self, fluid=surrogate)
+            if s is None or (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
+                             and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):
+                return dataclasses.replace(self, fluid=surrogate)
         return None
 
     def wall_notes(self) -> tuple[str, ...]:

@@ -203,9 +203,10 @@ def audit_markdown(d: Diagnosis) -> list[str]:
          ""]
     L += [f"Not audited: {n}." for n in d.audit_notes]
     for a in d.audits:
+        wall = a.wall_capacity_sentence()
         L += [f"### {a.run}", "",
               f"Over the run: unmetered mass {_est(a.mass_kg_s, 1e3)} g/s, unmetered heat {_est(a.heat_W)} W"
-              + (f", {a.wall_capacity_sentence()}" if a.wall_capacity_sentence() else "")
+              + (f", {wall}" if wall else "")
               + f", liquid temperature offset {_est(a.liquid_offset_K)} K (Birge ratio {a.birge:.2f}).", ""]
         named = [f.sentence for f in a.findings]
         L.append("Findings: " + ("; ".join(named) if named else "nothing unmetered beyond the noise") + ".")

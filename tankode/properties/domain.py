@@ -189,11 +189,22 @@ class Domain:
 # liquid down to this share of the way from the triple point to T_sat(p_min) (hydrogen: 17 K).
 _T_V_MAX_OF_T_SAT = 1.66
 _T_L_MIN_SHARE = 0.6
+# The wide and the low tier take the liquid down to this share of the way from the triple point
+# to saturation at their lowest pressure (hydrogen's wide tier: 15.1 K at 0.32 bar).
+_T_L_MIN_SHARE_LOW_P = 0.4
 # Both tiers start at least this multiple of the triple-point pressure: argon, krypton and
 # xenon boil at 1 atm only 1.2-1.5 times their triple-point pressure, so their tanks store liquid
 # within a few kelvin of freezing (argon: 87.3 K at 1 atm, triple point 83.8 K at 0.69 bar).
 _P_MIN_OF_TRIPLE = 1.05
 _HYDROGENS = ("ParaHydrogen", "Hydrogen", "OrthoHydrogen")
+
+
+def _margin_K(fluid_name: str, p_min_Pa: float, p_max_Pa: float) -> float:
+    """``Domain.metastable_K``, or less where the fluid's single-phase branches end sooner at
+    either end of the pressures, floored to 0.01 K."""
+    margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min_Pa)),
+                 _max_metastable_K(fluid_name, float(p_max_Pa)))
+    return math.floor(margin * 100.0) / 100.0
 
 
 def default_domain(fluid_name: str = "ParaHydrogen") -> Domain:
@@ -214,11 +225,9 @@ def default_domain(fluid_name: str = "ParaHydrogen") -> Domain:
         raise ValueError(f"{fluid_name}: no storage pressures between {_P_MIN_OF_TRIPLE:g} times its triple-point "
                          f"pressure ({_P_MIN_OF_TRIPLE * lim['p_triple']:.4g} Pa) and half its critical pressure ({0.5 * lim['p_crit']:.4g} Pa)")
     T_sat_lo, T_sat_hi = _T_sat(fluid_name, float(p_min)), _T_sat(fluid_name, float(p_max))
-    margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min)),
-                 _max_metastable_K(fluid_name, float(p_max)))
     return Domain(p_min_Pa=p_min, p_max_Pa=p_max, T_v_max_K=min(_T_V_MAX_OF_T_SAT * T_sat_hi, lim["T_max"]),
                   T_l_min_K=lim["T_triple"] + _T_L_MIN_SHARE * (T_sat_lo - lim["T_triple"]),
-                  metastable_K=math.floor(margin * 100.0) / 100.0, fluid_name=fluid_name)
+                  metastable_K=_margin_K(fluid_name, p_min, p_max), fluid_name=fluid_name)
 
 
 # The wide tier, as fractions of the fluid's critical point: ParaHydrogen 0.32 to 11.1 bar and
@@ -242,7 +251,7 @@ def wide_domain(fluid_name: str = "ParaHydrogen") -> Domain:
     p_max = WIDE_P_MAX_OF_CRIT * lim["p_crit"]
     shares = [_max_metastable_K(fluid_name, float(p)) / (lim["T_crit"] - _T_sat(fluid_name, float(p)))
               for p in np.linspace(p_min, p_max, 8)]
-    T_l_min = lim["T_triple"] + 0.4 * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"])
+    T_l_min = lim["T_triple"] + _T_L_MIN_SHARE_LOW_P * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"])
     return Domain(p_min_Pa=p_min, p_max_Pa=p_max, T_v_max_K=min(WIDE_T_V_MAX_OF_CRIT * lim["T_crit"], lim["T_max"]),
                   T_l_min_K=T_l_min, metastable_K=Domain.metastable_K, fluid_name=fluid_name,
                   metastable_share=math.floor(0.7 * min(shares) * 1000.0) / 1000.0)
@@ -268,11 +277,9 @@ def low_domain(fluid_name: str = "ParaHydrogen") -> Domain:
     d = default_domain(fluid_name)
     lim = _fluid_limits(fluid_name)
     p_min = max(LOW_P_MIN_OF_DEFAULT * d.p_min_Pa, _P_MIN_OF_TRIPLE * lim["p_triple"])
-    margin = min(Domain.metastable_K, _max_metastable_K(fluid_name, float(p_min)),
-                 _max_metastable_K(fluid_name, float(d.p_max_Pa)))
     return replace(d, p_min_Pa=p_min,
-                   T_l_min_K=lim["T_triple"] + 0.4 * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"]),
-                   metastable_K=math.floor(margin * 100.0) / 100.0)
+                   T_l_min_K=lim["T_triple"] + _T_L_MIN_SHARE_LOW_P * (_T_sat(fluid_name, float(p_min)) - lim["T_triple"]),
+                   metastable_K=_margin_K(fluid_name, p_min, d.p_max_Pa))
 
 
 def covers(domain: Domain, p_Pa, T_v_K, T_l_K, share: float = 0.05, relative: bool = False) -> bool:
