@@ -35,7 +35,7 @@ would arrive: as files.
 
     python experiments/foreign_assimilation.py [--quick] [--out results/foreign_assimilation]
         [--simulator nodal|cryo|layer] [--laws LAW ...] [--scenarios SCENARIO ...] [--duration S] [--seeds 0 1 2]
-        [--replay-segments N] [--replay-s S]
+        [--replay-segments N] [--replay-s S] [--window-start model|data]
 
 ``--seeds`` trains one agent per seed (initial weights and replay draws) on the same run, to
 separate what the data teach from what one draw of the initial weights does.
@@ -109,6 +109,8 @@ def main(argv=None) -> dict:
                     help="AssimilationConfig.replay_segments (default: the package's)")
     ap.add_argument("--replay-s", type=float, default=AssimilationConfig.replay_s,
                     help="AssimilationConfig.replay_s in s (default: the package's)")
+    ap.add_argument("--window-start", choices=("model", "data"), default=AssimilationConfig.window_start,
+                    help="where each window starts (AssimilationConfig.window_start)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="agent seeds (AssimilationConfig.seed: initial weights, replay draws); one row per seed")
     args = ap.parse_args(argv)
@@ -123,7 +125,8 @@ def main(argv=None) -> dict:
     laws = [args.simulator] if own else args.laws
     plan = [(s, law) for law in laws for s in scenarios] if not quick else [("upright_13m3", "mcadams")]
     duration_s = 2400.0 if quick else args.duration
-    base = AssimilationConfig(replay_segments=args.replay_segments, replay_s=args.replay_s)
+    base = AssimilationConfig(replay_segments=args.replay_segments, replay_s=args.replay_s,
+                              window_start=args.window_start)
     rows = []
     for (scenario, law), agent_seed in itertools.product(plan, args.seeds):
         config = dataclasses.replace(base, seed=agent_seed)

@@ -6,8 +6,10 @@ import argparse
 import json
 import sys
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
+from .errors import ConfigurationError
 from .files import check_output_dir
 
 # Choices spelled out so that argument parsing imports neither torch nor CoolProp (a test
@@ -64,8 +66,9 @@ def _parse_mechanism(spec: str):
         except ValueError:
             eq = ""
         if not eq:
-            raise ValueError(f"--mechanism {spec!r}: expected ID:NAME=VALUE[,NAME=VALUE], e.g. vapor_leak:mdot_kg_s=1e-4")
-    return make_mechanism(mid.strip(), **values)
+            raise ConfigurationError(f"--mechanism {spec!r}: expected ID:NAME=VALUE[,NAME=VALUE], e.g. vapor_leak:mdot_kg_s=1e-4")
+    with _options_checked():
+        return make_mechanism(mid.strip(), **values)
 
 
 def _parse_mechanisms(specs) -> tuple:
@@ -75,16 +78,27 @@ def _parse_mechanisms(specs) -> tuple:
     ids = [m.id for m in out]
     twice = sorted({i for i in ids if ids.count(i) > 1})
     if twice:
-        raise ValueError(f"--mechanism names {', '.join(twice)} more than once; give a mechanism's parameters "
+        raise ConfigurationError(f"--mechanism names {', '.join(twice)} more than once; give a mechanism's parameters "
                          f"once, comma-separated, e.g. {twice[0]}:NAME=VALUE,NAME=VALUE")
     return out
+
+
+@contextmanager
+def _options_checked():
+    """A configuration's refusal of the options as a ``ConfigurationError`` (not led by the runs)."""
+    try:
+        yield
+    except ConfigurationError:
+        raise
+    except ValueError as err:
+        raise ConfigurationError(str(err)) from err
 
 
 def _whole_number(text: str, option: str) -> int:
     try:
         return int(text)
     except ValueError:
-        raise ValueError(f"{option}: expected a whole number, got {text!r}") from None
+        raise ConfigurationError(f"{option}: expected a whole number, got {text!r}") from None
 
 
 def _audited_wall(run):
@@ -186,24 +200,26 @@ def cmd_assimilate(args) -> int:
         if window_s != AssimilationConfig.window_s:
             print(f"note: windows of {window_s:.0f} s, {WINDOW_MIN_SAMPLES} samples of the most sparsely logged run "
                   f"(--window sets another length)")
-    config = AssimilationConfig(window_s=window_s, mode=args.mode or AssimilationConfig.mode,
-                                batch_fraction=args.batch, iters=args.iters, seed=args.seed,
-                                memory=MEMORIES[args.memory](), window_start=args.window_start,
-                                start_prior_sigmas=args.start_prior_sigmas, gradient=gradient, integrator=integrator,
-                                train_mechanisms=tuple(args.train_mechanisms),
-                                replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
-                                replay_s=args.replay_s or AssimilationConfig.replay_s,
-                                update_budget_s=args.update_budget,
-                                wall=args.wall or AssimilationConfig.wall,
-                                boiling=args.boiling or AssimilationConfig.boiling,
-                                carry_over=args.carry_over or AssimilationConfig.carry_over,
-                                agent_features=(_input_set(args.inputs) if args.inputs is not None
-                                                else AssimilationConfig.agent_features))
+    with _options_checked():
+        config = AssimilationConfig(window_s=window_s, mode=args.mode or AssimilationConfig.mode,
+                                    batch_fraction=args.batch, iters=args.iters, seed=args.seed,
+                                    memory=MEMORIES[args.memory](),
+                                    window_start=args.window_start or AssimilationConfig.window_start,
+                                    start_prior_sigmas=args.start_prior_sigmas, gradient=gradient, integrator=integrator,
+                                    train_mechanisms=tuple(args.train_mechanisms),
+                                    replay_segments=args.replay_segments or AssimilationConfig.replay_segments,
+                                    replay_s=args.replay_s or AssimilationConfig.replay_s,
+                                    update_budget_s=args.update_budget,
+                                    wall=args.wall or AssimilationConfig.wall,
+                                    boiling=args.boiling or AssimilationConfig.boiling,
+                                    carry_over=args.carry_over or AssimilationConfig.carry_over,
+                                    agent_features=(_input_set(args.inputs) if args.inputs is not None
+                                                    else AssimilationConfig.agent_features))
     if writes:
         out.mkdir(parents=True, exist_ok=True)
     closure, mechanisms = None, ()
     if args.inputs is not None and args.init is not None:
-        raise ValueError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
+        raise ConfigurationError("--inputs chooses the features of a fresh agent; --init's closure already fixes them")
     if args.init is not None:
         closure, mechanisms, _ = load_model(args.init)
         if not any(p.requires_grad for p in closure.parameters()):
@@ -283,15 +299,20 @@ def cmd_diagnose(args) -> int:
         if meta["fluid"] != runs[0].fluid:
             raise ValueError(f"model {args.model} is for {meta['fluid']}, the runs are {runs[0].fluid}")
     split = None
-    if args.split == "tail":
-        split = HoldOutTail(args.holdout)
-    elif args.split == "run":
-        split = LeaveOneRunOut()
+    if args.holdout is not None and (args.split == "run" or (args.split == "auto" and len(runs) > 1)):
+        raise ConfigurationError("--holdout sets the held-out tail of each run, and these runs are held out one at a "
+                                 "time (--split run, or auto with several runs): add --split tail or drop --holdout")
+    with _options_checked():
+        if args.split == "tail" or args.holdout is not None:
+            split = HoldOutTail() if args.holdout is None else HoldOutTail(args.holdout)
+        elif args.split == "run":
+            split = LeaveOneRunOut()
     candidates = tuple(args.candidates) if args.candidates else DEFAULT_CANDIDATES
     weighting = ModelError() if args.weighting == "model-error" else SensorNoise()
     refit_top = None if args.refit_top == "all" else _whole_number(args.refit_top, "--refit-top N|all")
-    config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block,
-                             hold=tuple(args.hold), refit_top=refit_top)
+    with _options_checked():
+        config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block,
+                                 hold=tuple(args.hold), refit_top=refit_top)
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
     v = d.verdict
@@ -416,9 +437,10 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--integrator", choices=("dopri5", "rosenbrock"), default=None,
                    help="the ODE solver inside training: rosenbrock (linearly implicit: steps follow accuracy, not a "
                         "light wall's stability) or dopri5 (explicit, with the adjoint); default: AssimilationConfig's")
-    a.add_argument("--window-start", choices=("model", "data", "joint"), default="model",
-                   help="a fixed window's initial state: the model's carried state (default), a line fit of the "
-                        "data, or the carried state plus an offset fitted with the agent (joint; trainers/window_start.py)")
+    a.add_argument("--window-start", choices=("model", "data", "joint"), default=None,
+                   help="a fixed or replay window's initial state: the model's carried state, a line fit of the "
+                        "data, or (fixed windows) the carried state plus an offset fitted with the agent (joint; "
+                        "trainers/window_start.py); default: AssimilationConfig's")
     a.add_argument("--start-prior-sigmas", type=float, default=1.0,
                    help="with --window-start joint: the carried state's background std in noise sigmas (default 1)")
     a.add_argument("--init", "--model", dest="init", default=None,
@@ -456,7 +478,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--model", default=None, help="start from this saved model (default: the reference correlations)")
     dg.add_argument("--split", choices=("auto", "tail", "run"), default="auto",
                     help="held-out data: the tail of each run, or leave one run out (auto: runs if several)")
-    dg.add_argument("--holdout", type=float, default=0.3, help="held-out fraction of each run for --split tail")
+    dg.add_argument("--holdout", type=float, default=None,
+                    help="held-out fraction of each run, with --split tail (or auto on one run); default 0.3 "
+                         "(HoldOutTail)")
     dg.add_argument("--candidates", nargs="*", default=None, help="mechanism ids to test (default: every mechanism but the opt-in surface_layer, boundary_layer_stratification, growing_layer and diffusive_layer)")
     dg.add_argument("--weighting", choices=("sensor", "model-error"), default="sensor",
                     help="weigh residuals by the sensor noise, or by the calibrated baseline's RMS residual where it "
@@ -541,7 +565,7 @@ def _naming_the_runs(err: BaseException, args) -> str:
     given = list(getattr(args, "runs", None) or []) or ([args.run] if getattr(args, "run", None) else [])
     # a model directory by its path as given: its name alone ("model") is a common word
     models = [str(p) for p in (getattr(args, "model", None), getattr(args, "init", None)) if p]
-    if (not given or isinstance(err, RunFormatError) or any(Path(p).name in message for p in given)
+    if (not given or isinstance(err, (RunFormatError, ConfigurationError)) or any(Path(p).name in message for p in given)
             or any(p in message for p in models)):
         return message
     return f"{', '.join(given)}: {message}"

@@ -60,3 +60,9 @@ class BeyondPropertyDomain(ValueError):
 
 
 __all__ = ["SimulationError", "ImpossibleState", "StateLeftDomain", "BeyondPropertyDomain"]
+
+
+class ConfigurationError(ValueError):
+    """A command's options (or a configuration object built from them) are invalid or
+    inconsistent: a fault of the options, not of the runs, so the command line says it without
+    leading it by the run files."""

@@ -22,15 +22,31 @@ _I = {name: i for i, name in enumerate(INPUT_NAMES)}
 
 
 def _states_seen(runs) -> tuple[list[float], list[float], list[float]]:
-    """Pressures, vapour and liquid temperatures the runs start at or measure (the property domain must hold them)."""
+    """Pressures, vapour and liquid temperatures the runs start at, measure or inject (the property
+    domain must hold them): gas injected at ``T_v_in_K`` can bring the ullage towards that
+    temperature (warm-gas pressurisation), whatever its sensor reads."""
     p, T_v, T_l = [], [], []
+    mdot_in, T_in = INPUT_NAMES.index("mdot_v_in_kg_s"), INPUT_NAMES.index("T_v_in_K")
     for r in runs:
         p.append(r.initial.p_v_Pa)
         T_v.append(r.initial.T_v_K)
         T_l.append(r.initial.T_l_K)
         for seen, channel in ((p, "p_v_Pa"), (T_v, "T_v_K"), (T_l, "T_l_K")):
             seen.extend(r.observations.channel(channel)[1].tolist())
+        if r.inputs is not None:
+            rows = r.inputs.values
+            T_v.extend(rows[rows[:, mdot_in] > 0, T_in].tolist())
     return p, T_v, T_l
+
+
+def _may_hold(domain, p_Pa, T_v_K, T_l_K, T_sat_K) -> bool:
+    """Whether ``domain`` may hold these states (arrays), with room for the estimates'
+    extrapolation (5 % in pressure, 0.5 K in the vapour, 0.1 K in the liquid): a quick test
+    before a tier is fitted; its surrogate's ``contains`` decides."""
+    margin = domain.margin_K(T_sat_K)
+    return bool(np.all((p_Pa >= 0.95 * domain.p_min_Pa) & (p_Pa <= 1.05 * domain.p_max_Pa)
+                       & (T_v_K >= T_sat_K - margin - 0.5) & (T_v_K <= domain.T_v_max_K + 0.5)
+                       & (T_l_K >= domain.T_l_min_K - 0.1) & (T_l_K <= T_sat_K + margin + 0.1)))
 
 
 def sampling_interval_s(run) -> float:
@@ -119,7 +135,15 @@ class Fleet:
         if self.fluid.domain not in domains:
             return None
         s = None if state is None else state.detach().reshape(-1, state.shape[-1])
+        seen = None
+        if s is not None:  # the state's p and T as the current surrogate reads them (extrapolated)
+            with torch.no_grad():
+                pv = self.fluid.vapor(s[:, 2], s[:, 0] / s[:, 5])
+                pl = self.fluid.liquid(s[:, 3], s[:, 1] / s[:, 6])
+            seen = (pv.p.numpy(), pv.T.numpy(), pl.T.numpy(), pv.T_sat.numpy())
         for domain, config, _ in tiers[domains.index(self.fluid.domain) + 1:]:
+            if seen is not None and not _may_hold(domain, *seen):
+                continue  # not worth a fit (a tier's first use fits it: seconds to a minute)
             surrogate = load_surrogate(self.fluid.fluid_name, domain, config)
             if s is None or (surrogate.contains("vapor", s[:, 2], s[:, 0] / s[:, 5]).all()
                              and surrogate.contains("liquid", s[:, 3], s[:, 1] / s[:, 6]).all()):

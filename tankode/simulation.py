@@ -112,19 +112,22 @@ def simulate(
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
     closure = ReferenceClosure() if closure is None else closure
     notes = ()
-    try:
-        states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
-    except StateLeftDomain as err:
-        # A run that leaves its tier gets the next that holds it (the trajectory is not known
-        # before it is simulated); one given a surrogate or a fleet does not.
-        d0 = fleet.fluid.domain
-        wider = None if surrogate is not None or isinstance(runs, Fleet) else fleet.on_next_tier(err.state)
-        if wider is None:
-            raise
-        fleet, d = wider, wider.fluid.domain
-        notes = (f"the trajectory left the property domain of {d0.p_min_Pa:.4g} to {d0.p_max_Pa:.4g} Pa at "
-                 f"t = {err.t_s:.6g} s; simulated on the one of {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa",)
-        states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver, check_domain)
+    while True:
+        try:
+            states, obs, t_out, stats, wall = _run(fleet, closure, mechanisms, output_dt_s, t_eval, solver,
+                                                   check_domain)
+            break
+        except StateLeftDomain as err:
+            # A run that leaves its tier gets the next that holds it (the trajectory is not known
+            # before it is simulated); one given a surrogate or a fleet does not. Tiers are only
+            # walked forwards, so this ends.
+            d0 = fleet.fluid.domain
+            wider = None if surrogate is not None or isinstance(runs, Fleet) else fleet.on_next_tier(err.state)
+            if wider is None:
+                raise
+            fleet = wider
+            notes += (f"the trajectory left the property domain of {d0.extent()} at t = {err.t_s:.6g} s; "
+                      f"simulated on the one of {fleet.fluid.domain.extent()}",)
     notes += fleet.wall_notes()
     return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))
 

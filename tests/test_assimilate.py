@@ -243,8 +243,8 @@ def test_sigkill_then_resume_gives_the_uninterrupted_result(tmp_path, capsys):
     assert len(pred.observations) > 0
 
 
-def test_fixed_window_start_takes_measured_channels_from_the_data():
-    """window_start="data": measured channels at t_k come from a line fit of the previous window."""
+def test_window_start_data_takes_measured_channels_from_the_data():
+    """window_start="data": measured channels at t_k come from a line fit of the previous window (fixed and replay)."""
     from tankode.closures import ConstantClosure
     from trainers.assimilate import Assimilator
 
@@ -266,12 +266,19 @@ def test_fixed_window_start_takes_measured_channels_from_the_data():
     assert abs(float(got[0] - true_obs[0])) < 300.0 < abs(float(model_obs[0] - true_obs[0]))
     assert (got[1:4] - true_obs[1:4]).abs().max() < 0.02
     assert abs(float(got[4] - true_obs[4])) < 2e-4
+    # A replay window's newest window starts from the same data-corrected state (its replayed
+    # segments keep the states the earlier windows' simulations reached).
+    replay = Assimilator([data], AssimilationConfig.paper(window_s=60.0, window_start="data", mode="replay"),
+                         closure=wrong)
+    assert torch.equal(replay._span(2, s_model)[1], s_start)
     with pytest.raises(ValueError, match="window_start"):
         AssimilationConfig.paper(window_start="truth")
-    # replay and growing windows have no start to take from the data: refused, not ignored
-    for mode in ("replay", "growing"):
-        with pytest.raises(ValueError, match=f"window_start='data' needs mode='fixed' \\(a {mode} window"):
-            AssimilationConfig(mode=mode, window_start="data")
+    # a growing window has no start to take from the data, and a joint offset is fitted on the newest
+    # window alone: refused, not ignored
+    with pytest.raises(ValueError, match="window_start='data' needs mode='fixed' or 'replay' \\(a growing window"):
+        AssimilationConfig(mode="growing", window_start="data")
+    with pytest.raises(ValueError, match="window_start='joint' needs mode='fixed'"):
+        AssimilationConfig(mode="replay", window_start="joint")
 
 
 def test_laplace_memory_hessian_predicts_the_cost_of_scaling_the_coefficients():

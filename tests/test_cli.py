@@ -162,7 +162,7 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
 
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices["assimilate"]
     (start,) = [a for a in sub._actions if a.dest == "window_start"]
-    assert start.default == AssimilationConfig.window_start
+    assert start.default is None  # None: the configuration's default
     for choice in start.choices:  # every choice the parser offers is one the config accepts
         AssimilationConfig(window_start=choice, mode="fixed")
     seen = {}
@@ -182,6 +182,7 @@ def test_assimilate_window_start_and_gradient_reach_the_config(tmp_path, monkeyp
     assert seen["config"] == AssimilationConfig(window_s=6000.0, mode="fixed", window_start="joint", start_prior_sigmas=3.0)
     assert main([*args, "--gradient", "checkpointed"]) == 2  # the stand-in stops the command
     assert type(seen["config"].gradient).__name__ == "Checkpointed"
+    assert seen["config"].window_start == AssimilationConfig.window_start
     # dopri5's default gradient is the adjoint
     assert main([*args, "--integrator", "dopri5"]) == 2  # the stand-in stops the command
     assert (seen["config"].integrator, type(seen["config"].gradient).__name__) == ("dopri5", "Adjoint")

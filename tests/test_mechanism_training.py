@@ -74,7 +74,7 @@ def test_gradient_in_a_mechanism_parameter_matches_central_differences(data, gra
     J().backward()
     for xi in (xi_leak, xi_wall):
         fd = central_difference(J, xi)
-        assert torch.allclose(xi.grad, fd, rtol=1e-5), (xi.grad, fd)
+        assert torch.allclose(xi.grad, fd, rtol=1e-5), (xi.grad.item(), fd.item())
 
 
 def test_hidden_heat_leak_and_wall_capacity_are_recovered_and_saved(data, tmp_path):
@@ -123,8 +123,10 @@ def test_gradient_through_the_first_state_built_from_offset_readings(offset_data
 
     J().backward()
     for xi in (xi_gas, xi_bias):
-        fd = central_difference(J, xi)
-        assert torch.allclose(xi.grad, fd, rtol=1e-5), (xi.grad, fd)
+        # A step of 1e-3: the adaptive solver's steps move with xi, a noise of ~1e-9 in J that a
+        # step of 1e-4 turns into 2e-5 in the slope (measured; 1e-3 and 3e-4 agree within 2e-6).
+        fd = central_difference(J, xi, rel_step=1e-3)
+        assert torch.allclose(xi.grad, fd, rtol=1e-5), (xi.grad.item(), fd.item())
     # without the start's slope, the gradient in the gas would be the sensor offset's alone
     with torch.no_grad():
         s_fixed = a.start_state()

@@ -442,10 +442,28 @@ def test_a_vent_below_the_default_tier_that_the_wide_tier_misses_is_held_by_the_
     assert [covers(d, **vent, relative=r) for d, _, r in tiers] == [False, False, True]
     assert tiers[2][0] == low_domain("Methane") and low_domain("Methane").p_min_Pa == pytest.approx(0.7e5 / 3)
     h2 = [covers(d, [0.49e5, 4e5], [19.5, 30.0], [18.0], relative=r) for d, _, r in property_tiers("ParaHydrogen")]
-    assert h2 == [False, True, True] and wide_domain("ParaHydrogen").p_min_Pa < low_domain("ParaHydrogen").p_max_Pa
+    assert h2 == [False, True, True, True] and wide_domain("ParaHydrogen").p_min_Pa < low_domain("ParaHydrogen").p_max_Pa
     with pytest.raises(BeyondPropertyDomain, match=r"Methane property domains \(pressure 1.15e\+05 to .* or pressure "
                                                     r"2.333e\+04 to 6e\+05 Pa"):
         surrogate_covering("Methane", [0.2e5, 1.5e5], [110.0], [107.0])
+
+
+def test_warm_gas_pressurisation_takes_the_hot_tier_where_the_wide_one_stops_short():
+    """Gas injected at 300 K can bring a small ullage towards 300 K: hydrogen's and nitrogen's wide
+    tiers stop at 2.5 T_crit (82 and 316 K), their hot tiers (the wide tier's pressures) at 350 K;
+    methane's and oxygen's wide tiers reach past it, so they have no hot tier."""
+    from tankode.properties import hot_domain, property_tiers, wide_domain
+    from tankode.properties.domain import covers
+
+    for fluid_name in ("ParaHydrogen", "Nitrogen"):
+        *_, (hot, config, relative) = property_tiers(fluid_name)
+        assert hot == hot_domain(fluid_name) and hot.T_v_max_K == 350.0 and relative and config.n_centres == 600
+        wide = wide_domain(fluid_name)
+        assert (hot.p_min_Pa, hot.p_max_Pa) == (wide.p_min_Pa, wide.p_max_Pa)
+        assert [covers(d, [1.5e5], [320.0], [wide.T_l_min_K + 3], relative=r)
+                for d, _, r in property_tiers(fluid_name)] == [False, False, False, True]
+    for fluid_name in ("Methane", "Oxygen"):
+        assert len(property_tiers(fluid_name)) == 3 and hot_domain(fluid_name) == wide_domain(fluid_name)
 
 
 @pytest.mark.slow

@@ -109,6 +109,17 @@ def test_a_missing_model_is_named_alone_not_led_by_the_run(case3, tmp_path, caps
     assert str(case3) not in line, line
 
 
+def test_a_bad_option_is_named_alone_not_led_by_the_run(case3, tmp_path, capsys):
+    # A configuration's refusal is a fault of the options: the run file does not lead it.
+    for argv in (["assimilate", str(case3), "--out", str(tmp_path / "a"), "--mode", "growing", "--window-start", "data"],
+                 ["assimilate", str(case3), "--out", str(tmp_path / "b"), "--mechanism", "no_such:x=1"],
+                 ["diagnose", str(case3), "--out", str(tmp_path / "c"), "--block", "-1"],
+                 ["diagnose", str(case3), "--out", str(tmp_path / "d"), "--holdout", "2"],
+                 ["diagnose", str(case3), str(case3), "--out", str(tmp_path / "e"), "--holdout", "0.2"]):
+        line = _error(capsys, argv)
+        assert line.startswith(f"tankode {argv[0]}: error: ") and str(case3) not in line, line
+
+
 def test_refused_pickles_are_one_line_errors_without_the_unsafe_hint(case3, tmp_path, capsys):
     import pickle
 
@@ -263,6 +274,32 @@ def test_a_methane_tank_vented_below_the_default_tier_simulates_on_the_low_one(t
     assert main(["simulate", str(tmp_path / "r" / "vent.json"), "--out", str(tmp_path / "o")]) == 0
     p = read_run(tmp_path / "o" / "vent.json").observations.channel("p_v_Pa")[1]
     assert p.min() < 0.8e5, p.min()
+
+
+@pytest.mark.slow
+def test_a_tank_pressurised_with_ambient_gas_simulates_on_the_hot_tier(tmp_path, capsys):
+    # 2.4 kg of 300 K hydrogen into a half-full 9.4 m3 tank at 1.5 bar: the run's initial state
+    # lies in the default tier, its injected gas does not (the wide tier's vapour stops at 82 K),
+    # so the run is matched to the hot tier from the start (Fleet.from_runs) and its ullage warms
+    # past 82 K.
+    from tankode.fleet import Fleet
+    from tankode.properties import hot_domain
+    from tankode.run import InitialState, Run, TankSpec
+    from tankode.run_io import write_run
+    from tankode.schedule import Schedule
+
+    run = Run(name="warm", fluid="ParaHydrogen",
+              tank=TankSpec.from_dict({"shape": "vertical_cylinder", "radius_m": 1.0, "height_m": 3.0,
+                                       "wall_heat_capacity_J_per_K": 2e5}),
+              initial=InitialState(p_v_Pa=1.5e5, T_v_K=24.0, T_l_K=21.5, T_w_K=23.0, fill_ratio=0.5), duration_s=1200.0,
+              inputs=Schedule.from_steps([(0, {"Q_aw_W": 200.0}),
+                                          (300, {"mdot_v_in_kg_s": 0.004, "T_v_in_K": 300.0, "p_v_in_Pa": 6e5}),
+                                          (900, {"mdot_v_in_kg_s": 0.0})], t_end=1200.0))
+    assert Fleet.from_runs(run).fluid.domain == hot_domain("ParaHydrogen")
+    write_run(run, tmp_path / "r")
+    assert main(["simulate", str(tmp_path / "r" / "warm.json"), "--out", str(tmp_path / "o")]) == 0
+    T_v = read_run(tmp_path / "o" / "warm.json").observations.channel("T_v_K")[1]
+    assert T_v.max() > 85.0, T_v.max()
 
 
 @needs_mhtb

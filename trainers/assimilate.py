@@ -18,11 +18,14 @@ is updated with ``iters`` bounded L-BFGS iterations on the cost J over
   with the batch (8 tanks cost 1.02 times one), so three segments cost about one.
 
 Initial state of each window. Growing windows always start from the run's initial state (the
-metadata's p, T and fill). A fixed window k > 0 starts from the state at ``t_k`` of the
-simulation of window k-1 with the agent as updated on window k-1 (``window_start="model"``,
-the default): the model carries its own state, so an agent is only rewarded for being right
-over the whole stream (on case 1 this gives the final agent a whole-hour pressure error
-several times smaller than data starts do; ``experiments/README.md``). With
+metadata's p, T and fill). A fixed window k > 0, and a replay update's newest window (its
+replayed segments start from the states the earlier windows' simulations reached), starts
+from the state at ``t_k`` of the simulation of window k-1 with the agent as updated on window
+k-1 (``window_start="model"``, the default): the model carries its own state, so an agent is
+only rewarded for being right over the whole stream (on case 1 this gives the final agent a
+whole-hour pressure error several times smaller than data starts do; on another simulator's
+stratified tanks data starts fit the windows more closely and forecast no better;
+``experiments/README.md``). With
 ``window_start="data"`` every measured channel (p_v, T_v, T_l, T_w, H_l) is replaced by the
 value at ``t_k`` of a straight line fitted to its last samples (at most ``FIT_SPAN_S``, none
 before the last input change, which would bend the line) and the state is rebuilt from them
@@ -112,8 +115,9 @@ class AssimilationConfig:
             the run with, ``J + base_prior_weight/2 * mean((w - w_0)^2)``: for an agent on a
             physical base (``MLPConfig.base``), whose start is that closure, the learned correction
             stays near 1 where the data do not ask for one (an operating regime not seen yet).
-        window_start: "model", "data" or "joint": where a fixed window's initial state comes
-            from (module docstring); "data" and "joint" need ``mode="fixed"``.
+        window_start: "model", "data" or "joint": where a fixed or replay window's newest
+            window starts (module docstring); "data" needs ``mode="fixed"`` or ``"replay"``,
+            "joint" ``mode="fixed"``.
         start_prior_sigmas: with ``window_start="joint"``, the background std of the carried
             state in units of each channel's noise std (1: the carried state is worth one
             sample per channel, so a window's ~60 samples decide the offset).
@@ -286,12 +290,15 @@ class AssimilationConfig:
             raise ValueError(f"integrator must be one of {tuple(_INTEGRATORS)}, got {self.integrator!r}")
         if self.integrator == "rosenbrock" and isinstance(self.gradient, Adjoint):
             raise ValueError("integrator='rosenbrock' has no continuous adjoint: use gradient=Backprop() or Checkpointed()")
-        if self.window_start != "model" and self.mode != "fixed":
-            # a growing window starts from the run's initial state, a replay window from the state
-            # carried by the segments before it: neither has a start to take from the data
-            raise ValueError(f"window_start={self.window_start!r} needs mode='fixed' (a {self.mode} window starts from "
-                             f"{'the run' if self.mode == 'growing' else 'the carried state'}: "
-                             "use window_start='model' or mode='fixed')")
+        if self.window_start != "model" and self.mode == "growing":
+            # a growing window starts from the run's initial state: it has no start to take from the data
+            raise ValueError(f"window_start={self.window_start!r} needs mode='fixed' or 'replay' (a growing window "
+                             "starts from the run's initial state: use window_start='model' or another mode)")
+        if self.window_start == "joint" and self.mode != "fixed":
+            # the offset is fitted on the newest window alone; the replayed segments start from states
+            # that were carried, and an offset trained on both would be judged by data it never moves
+            raise ValueError("window_start='joint' needs mode='fixed' (use window_start='data' or 'model' with "
+                             f"mode={self.mode!r})")
         if (not isinstance(self.train_mechanisms, tuple) or not all(isinstance(m, str) for m in self.train_mechanisms)
                 or len(set(self.train_mechanisms)) != len(self.train_mechanisms)):
             raise ValueError(f"train_mechanisms must be a tuple of distinct mechanism ids, got {self.train_mechanisms!r}")
@@ -691,7 +698,7 @@ class Assimilator:
         if self.config.mode == "growing" or k == 0:
             return self.fleet.t0_s, self.s0
         t_k = self.windows[k][0]
-        if self.config.window_start in ("model", "joint") or self.config.mode == "replay":
+        if self.config.window_start in ("model", "joint"):
             return t_k, s_next
         return t_k, self._data_corrected(s_next, *self.windows[k - 1])
 

@@ -473,9 +473,9 @@ def diagnose(runs, base_closure=None, fixed_mechanisms=(), config: DiagnosisConf
                 left = isinstance(stop.error, StateLeftDomain) and not given
                 wider = fleet.on_next_tier(stop.error.state) if left else None
                 if wider is not None:
-                    fleet, d = wider, wider.fluid.domain
+                    fleet = wider
                     dynamic_notes.append(f"the model left its property domain ({str(stop.error).splitlines()[0]}); the "
-                                         f"dynamic search ran again on the one of {d.p_min_Pa:.4g} to {d.p_max_Pa:.4g} Pa")
+                                         f"dynamic search ran again on the one of {fleet.fluid.domain.extent()}")
                     say(dynamic_notes[-1])
                     continue
                 dynamic_notes.append(f"the dynamic search {stop.stage}: {' '.join(str(stop.error).split())}")

@@ -9,10 +9,11 @@ functions of (u, rho), fitted to CoolProp (``fit_surrogate``) and cached on disk
 from .benchmark import benchmark_surrogate
 from .coolprop import CoolPropFluid
 from .surrogate import (WIDE_CONFIG, Domain, PhaseProps, Surrogate, SurrogateConfig, fit_surrogate, load_surrogate,
-                        surrogate_covering, property_tiers, default_domain, wide_domain, low_domain)
+                        surrogate_covering, property_tiers, default_domain, wide_domain, low_domain, hot_domain,
+                        HOT_CONFIG)
 
 __all__ = [
     "CoolPropFluid", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate",
     "benchmark_surrogate", "surrogate_covering", "property_tiers", "default_domain", "wide_domain",
-    "low_domain", "WIDE_CONFIG",
+    "low_domain", "hot_domain", "WIDE_CONFIG", "HOT_CONFIG",
 ]

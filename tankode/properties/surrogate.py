@@ -6,11 +6,11 @@ Peng-Robinson pressure and first-order Taylor temperature corrected by RBF inter
 min-max scaled (u, rho), one per phase).
 """
 
-from .cache import WIDE_CONFIG, load_surrogate, property_tiers, surrogate_covering
+from .cache import HOT_CONFIG, WIDE_CONFIG, load_surrogate, property_tiers, surrogate_covering
 from .config import SurrogateConfig
-from .domain import Domain, default_domain, low_domain, wide_domain
+from .domain import Domain, default_domain, hot_domain, low_domain, wide_domain
 from .fit import fit_surrogate
 from .model import PhaseProps, Surrogate
 
 __all__ = ["WIDE_CONFIG", "Domain", "SurrogateConfig", "Surrogate", "PhaseProps", "fit_surrogate", "load_surrogate", "surrogate_covering",
-           "property_tiers", "default_domain", "wide_domain", "low_domain"]
+           "property_tiers", "default_domain", "wide_domain", "low_domain", "hot_domain", "HOT_CONFIG"]
