@@ -64,8 +64,11 @@ NAMED = [
     ("hcyl_drain_fill", "mcadams", "liquid_leak_kg_s", 5e-4, "liquid_leak", 5e-4),
     ("tank_4p9m3", "mcadams", "inflow_meter_bias", 0.15, "inflow_meter_bias", 0.15),
     ("hcyl_drain_fill", "paper_printed", "temperature_sensor_bias_K", 0.5, "temperature_sensor_bias", 0.5),
-    # named only since the offset's signature includes the drain metered at the biased T_l
-    ("upright_13m3", "mcadams", "temperature_sensor_bias_K", 0.5, "temperature_sensor_bias", 0.5),
+    # The drain's mass signature of this offset is also a liquid density a half per cent off
+    # (AuditConfig.liquid_density_prior), which an engineering model's normal hydrogen needs: the
+    # right name or none, and none since that prior (its drain metered at the biased T_l alone
+    # does not carry it to 4 standard errors)
+    ("upright_13m3", "mcadams", "temperature_sensor_bias_K", 0.5, None, 0.5),
     # the fill runs with the vent open: the inert gas's vent column fits this bias as 3e4 mol,
     # a partial pressure far above the pressure, which the physical bound rejects
     ("hcyl_drain_fill", "mcadams", "inflow_meter_bias", 0.15, "inflow_meter_bias", 0.15),
@@ -76,6 +79,9 @@ NAMED = [
 def test_the_audit_names_what_another_simulator_hid_in_the_inventory(nodal, scenario, law, mechanism, value, finding,
                                                                      truth):
     a = audit_run(nodal(scenario, law, mechanism, value))
+    if finding is None:
+        assert a.findings == (), a.summary()
+        return
     assert [f.name for f in a.findings] == [finding], a.summary()
     (f,) = a.findings
     assert f.estimate.value == pytest.approx(truth, rel=0.25), a.summary()
@@ -302,9 +308,7 @@ def test_a_leak_whose_energy_the_balances_resolve_but_not_its_mass_is_stated_as_
 
 
 @pytest.mark.parametrize("scenario,mechanism,value,finding", [
-    # without the property nuisances an inflow bias of 1.7 %, which the mass balance alone reads at
-    # 2.6 standard errors: not borne out (Hypothesis.mass_disagrees), so not named by either audit
-    ("random_2", None, 0.0, None),
+    ("random_2", None, 0.0, None),  # without the property nuisances: an inflow bias of 1.7 %
     ("random_3", None, 0.0, None),  # 0.35 g/s of unmetered mass: the liquid's compressibility
     ("random_8", None, 0.0, None),  # a liquid thermometer bias of -0.50 K
     # a thermometer bias of -1.0 K: the liquid's energy of temperature alone, which CoolProp's
@@ -328,10 +332,7 @@ def test_the_audit_reads_a_fifth_simulators_engineering_properties(tmp_path, sce
                                  out_dir=tmp_path, name=f"{scenario}_{mechanism}")
     run = read_run(paths["json"])
     _assert_audit_finds(run, finding, value)
-    if finding is None and scenario == "random_2":
-        trusting = audit_run(run, AuditConfig().trusting_properties())
-        assert trusting.findings == () and trusting.hypotheses["inflow_meter_bias"].mass_disagrees
-    elif finding is None:
+    if finding is None:
         trusting = AuditConfig().trusting_properties()
         assert audit_run(run, trusting).findings != ()  # the property nuisances are what keeps it silent
         withheld = audit_run(run).withheld
@@ -340,14 +341,16 @@ def test_the_audit_reads_a_fifth_simulators_engineering_properties(tmp_path, sce
 
 def test_a_leak_named_beside_a_thermometer_bias_keeps_its_rate(tmp_path):
     """eng_sim's random_72, whose liquid thermometer reads 0.5 K off the liquid's energy under its
-    engineering properties, with a 0.5 g/s vapour leak: the audit names both, and the verdict's
-    unmetered mass is the leak's rate (it was 'not measured')."""
+    engineering properties, with a 0.5 g/s vapour leak: the verdict's unmetered mass is the
+    leak's rate (it was 'not measured'), the vapour leak and the thermometer among its
+    candidates (with a liquid density allowed a half per cent, so are a liquid leak, a meter
+    bias and the wall)."""
     from tankode.diagnosis.verdict import inventory
 
     paths = eng_sim.simulate_run("random_72", {"vapor_leak_kg_s": 5e-4}, noise="low", seed=0, out_dir=tmp_path,
                                  name="leak")
     inv = inventory([audit_run(read_run(paths["json"]))])
-    assert inv.unresolved == "unmetered_mass" and set(inv.candidates) == {"temperature_sensor_bias", "vapor_leak"}
+    assert inv.unresolved == "unmetered_mass" and {"temperature_sensor_bias", "vapor_leak"} <= set(inv.candidates)
     assert -inv.estimate.value == pytest.approx(5e-4, rel=0.25)
 
 
