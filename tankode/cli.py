@@ -79,7 +79,7 @@ def _parse_mechanisms(specs) -> tuple:
     twice = sorted({i for i in ids if ids.count(i) > 1})
     if twice:
         raise ConfigurationError(f"--mechanism names {', '.join(twice)} more than once; give a mechanism's parameters "
-                         f"once, comma-separated, e.g. {twice[0]}:NAME=VALUE,NAME=VALUE")
+                                 f"once, comma-separated, e.g. {twice[0]}:NAME=VALUE,NAME=VALUE")
     return out
 
 

@@ -59,10 +59,10 @@ class BeyondPropertyDomain(ValueError):
     fluid (``tankode.properties.surrogate_covering``): the model cannot simulate it."""
 
 
-__all__ = ["SimulationError", "ImpossibleState", "StateLeftDomain", "BeyondPropertyDomain"]
-
-
 class ConfigurationError(ValueError):
     """A command's options (or a configuration object built from them) are invalid or
     inconsistent: a fault of the options, not of the runs, so the command line says it without
     leading it by the run files."""
+
+
+__all__ = ["SimulationError", "ImpossibleState", "StateLeftDomain", "BeyondPropertyDomain", "ConfigurationError"]

@@ -44,10 +44,11 @@ def _may_hold(domain, p_Pa, T_v_K, T_l_K, T_sat_K) -> bool:
     extrapolation just past the current tier (1 % in pressure, 0.5 K in the vapour, 0.1 K in the
     liquid): a quick test before a tier is fitted (tens of seconds on first use); its
     surrogate's ``contains`` decides."""
-    margin = domain.margin_K(T_sat_K)
+    v_lo, v_hi = domain.T_bounds("vapor", T_sat_K)
+    l_lo, l_hi = domain.T_bounds("liquid", T_sat_K)
     return bool(np.all((p_Pa >= 0.99 * domain.p_min_Pa) & (p_Pa <= 1.01 * domain.p_max_Pa)
-                       & (T_v_K >= T_sat_K - margin - 0.5) & (T_v_K <= domain.T_v_max_K + 0.5)
-                       & (T_l_K >= domain.T_l_min_K - 0.1) & (T_l_K <= T_sat_K + margin + 0.1)))
+                       & (T_v_K >= v_lo - 0.5) & (T_v_K <= v_hi + 0.5)
+                       & (T_l_K >= l_lo - 0.1) & (T_l_K <= l_hi + 0.1)))
 
 
 def sampling_interval_s(run) -> float:

@@ -196,7 +196,6 @@ class Tank:
         T_v, p, p_f = self.vapour(m_v, U_v, V_v, getattr(self, "_Tv", 25.0))
         self._Tv = T_v
         H = self.geo.H_of_V(V_l)
-        fw = V_l / self.geo.Vtot  # not used for wall split
         Awet, Ai = self.geo.at(H)
         Adry = self.geo.Atot - Awet
         f_wet = Awet / self.geo.Atot
@@ -328,23 +327,21 @@ def simulate(cfg, outdir):
     y = y0
     for i, (t0, inp) in enumerate(segs):
         t1 = bounds[i + 1]
-        te = t_obs[(t_obs >= t0) & (t_obs < t1)]
-        if i == len(segs) - 1:
-            te = t_obs[(t_obs >= t0) & (t_obs <= t1)]
-        sol = solve_ivp(tank.rhs, (t0, t1), y, method="LSODA", t_eval=te, args=(inp,),
+        last = i == len(segs) - 1
+        te = t_obs[(t_obs >= t0) & ((t_obs <= t1) if last else (t_obs < t1))]
+        # one integration per segment: its end (the next segment's start) is taken from the
+        # same solution's dense output, not from a second integration
+        sol = solve_ivp(tank.rhs, (t0, t1), y, method="LSODA", args=(inp,), dense_output=True,
                         rtol=1e-8, atol=np.abs(y) * 1e-9 + 1e-12, max_step=20.0)
         if not sol.success:
             raise RuntimeError(sol.message)
-        ts_all.append(sol.t); ys_all.append(sol.y.T)
-        sol2 = solve_ivp(tank.rhs, (t0, t1), y, method="LSODA", args=(inp,), rtol=1e-8,
-                         atol=np.abs(y) * 1e-9 + 1e-12, max_step=20.0)
-        y = sol2.y[:, -1]
+        ts_all.append(te); ys_all.append(sol.sol(te).T if len(te) else np.empty((0, len(y))))
+        y = sol.y[:, -1]
     ts = np.concatenate(ts_all); Y = np.concatenate(ys_all)
     # conservation check
-    yl = y
-    E1 = yl[1] + yl[3] + yl[4] + yl[5]; M1 = yl[0] + yl[2]
-    cons = dict(energy_err_J=float(E1 - E0 - yl[6]), energy_in_J=float(yl[6]),
-                mass_err_kg=float(M1 - M0 - yl[7]), mass_in_kg=float(yl[7]), m0=float(M0))
+    E1 = y[1] + y[3] + y[4] + y[5]; M1 = y[0] + y[2]
+    cons = dict(energy_err_J=float(E1 - E0 - y[6]), energy_in_J=float(y[6]),
+                mass_err_kg=float(M1 - M0 - y[7]), mass_in_kg=float(y[7]), m0=float(M0))
     obs = []
     seg_t = np.array([s[0] for s in segs])
     for t, yy in zip(ts, Y):

@@ -1145,6 +1145,9 @@ class _RunFit:
         self.has_vent = any(np.ptp(d.cols["noncondensable_gas"]) > 0 for d in datas)
         self.r = np.concatenate([np.concatenate([d.rM, d.rE / _H_REF]) if d.rM is not None else d.rE / _H_REF
                                  for d in datas])
+        # Which of those rows are the mass balance's (``solve(rows="mass")``).
+        self.mass_rows = np.concatenate([np.r_[np.ones(len(d.tt), bool), np.zeros(len(d.tt), bool)]
+                                         if d.rM is not None else np.zeros(len(d.tt), bool) for d in datas])
         n = len(self.r)
         self.C = np.zeros((n, n))
         o = 0
@@ -1204,8 +1207,7 @@ class _RunFit:
         X = np.column_stack(self.base + [self.nuisance[k] for k in nuisance] + [self.column(k) for k in rates])
         r, C = self.r, self.C
         if rows == "mass":
-            keep = np.concatenate([np.r_[np.ones(len(d.tt), bool), np.zeros(len(d.tt), bool)] if d.rM is not None
-                                   else np.zeros(len(d.tt), bool) for d in self.datas])
+            keep = self.mass_rows
             if not keep.any():
                 return None
             X, r, C = X[keep], r[keep], C[np.ix_(keep, keep)]
@@ -1218,7 +1220,7 @@ class _RunFit:
         # are held at 0 by a tight one: free, they would leave the normal matrix singular.
         prior_rows = [(index[n], v) for n, v in prior.items()]
         held = {j for j, _ in prior_rows}
-        unreached = [j for j in range(k) if rows == "mass" and j not in held and not np.any(X[:, j])]
+        unreached = [j for j in range(k) if j not in held and not np.any(X[:, j])] if rows == "mass" else []
         prior_rows += [(j, 1e-6) for j in unreached]
         # Priors on the nuisances as pseudo-observations.
         P = np.zeros((len(prior_rows), k))
