@@ -212,6 +212,7 @@ def cmd_assimilate(args) -> int:
                                     update_budget_s=args.update_budget,
                                     wall=args.wall or AssimilationConfig.wall,
                                     boiling=args.boiling or AssimilationConfig.boiling,
+                                    unknown_wall=args.unknown_wall or AssimilationConfig.unknown_wall,
                                     carry_over=args.carry_over or AssimilationConfig.carry_over,
                                     agent_features=(_input_set(args.inputs) if args.inputs is not None
                                                     else AssimilationConfig.agent_features))
@@ -251,6 +252,11 @@ def cmd_assimilate(args) -> int:
     info = {"runs": [r.name for r in runs], "assimilation": config.to_json(),
             "final_cost": result.reports[-1].cost_after if result.reports else None,
             **(launch.info() if launch is not None else {})}
+    unknown = next((m for m in assim.model.mechanisms if m.id == "unknown_wall_capacity"), None)
+    if unknown is not None and unknown in assim.trained.mechanisms:
+        for run, cw in zip(assim.fleet.runs, assim.model.effective_wall_heat_capacity_J_per_K.tolist()):
+            print(f"note: {run.name}: wall heat capacity learned from the data: {cw:.4g} J/K "
+                  f"({float(unknown.value[0].exp()):.3g} times the assumed shell)", flush=True)
     if writes:
         save_model(out, result.closure, runs[0].fluid, info, mechanisms=tuple(assim.model.mechanisms))
         print(f"wrote {out / 'model.json'}, {out / 'weights.pt'}")
@@ -312,7 +318,9 @@ def cmd_diagnose(args) -> int:
     refit_top = None if args.refit_top == "all" else _whole_number(args.refit_top, "--refit-top N|all")
     with _options_checked():
         config = DiagnosisConfig(candidates=candidates, split=split, weighting=weighting, block_s=args.block,
-                                 hold=tuple(args.hold), refit_top=refit_top)
+                                 hold=tuple(args.hold), refit_top=refit_top,
+                                 refit_budget_s=(DiagnosisConfig.refit_budget_s if args.refit_budget is None
+                                                 else args.refit_budget))
     d = diagnose(runs, closure, mechanisms, config, progress=None if args.quiet else print)
     paths = write_report(d, args.out, runs[0].fluid)
     v = d.verdict
@@ -413,6 +421,10 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--boiling", choices=("learned", "bulk"), default=None,
                    help="the liquid's flashing: a share of the liquid boiling at saturation, trained (learned), or "
                         "only the bulk's flash 0.2 K past saturation (bulk); default: AssimilationConfig's")
+    a.add_argument("--unknown-wall", choices=("trained", "assumed"), default=None,
+                   help="a wall heat capacity that no run states and no wall sensor reads: a factor on the "
+                        "aluminium-shell estimate trained with the agent (trained), or the estimate as it is "
+                        "(assumed); default: AssimilationConfig's")
     a.add_argument("--carry-over", choices=("validated", "integrable"), default=None,
                    help="how an update starts from the previous windows' agent: checked on the new window against "
                         "the initial agent and shrunk towards it where it predicts worse (validated), or as it is "
@@ -497,6 +509,10 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--refit-top", default="5", metavar="N|all",
                     help="refit the N candidates the score test ranks first, or all (default 5; the score test is a "
                          "slope at 0 and under-ranks strongly nonlinear mechanisms on real data such as MHTB's)")
+    dg.add_argument("--refit-budget", type=float, default=None, metavar="SECONDS",
+                    help="no candidate is refitted once this much wall-clock time has passed since the start "
+                         "(default: DiagnosisConfig's, ten minutes; inf: every refit, a result independent of the "
+                         "machine's speed)")
     dg.add_argument("--quiet", action="store_true", help="no progress lines")
     dg.add_argument("--initial", choices=("metadata", "measured"), default="metadata", help=_INITIAL_HELP)
     dg.set_defaults(func=cmd_diagnose)

@@ -13,6 +13,7 @@ from .closures import Closure, ReferenceClosure
 from .errors import ImpossibleState, SimulationError, StateLeftDomain
 from .fleet import Fleet
 from .integrate import IntegrationStats, integrate, state_scale
+from .mechanisms import applied_to_walls
 from .model import TankModel
 from .run import OBS_CHANNELS as OBS_NAMES
 from .solver import LSODA, AdaptiveRK, NoGradient
@@ -111,6 +112,7 @@ def simulate(
     """
     fleet = runs if isinstance(runs, Fleet) else Fleet.from_runs(runs, surrogate)
     closure = ReferenceClosure() if closure is None else closure
+    mechanisms, learned = applied_to_walls(mechanisms, [r.name for r in fleet.runs], fleet.walls)
     notes = ()
     while True:
         try:
@@ -128,7 +130,7 @@ def simulate(
             fleet = wider
             notes += (f"the trajectory left the property domain of {d0.extent()} at t = {err.t_s:.6g} s; "
                       f"simulated on the one of {fleet.fluid.domain.extent()}",)
-    notes += fleet.wall_notes()
+    notes += fleet.wall_notes() + learned
     return Solution(t_out, states, obs, "success", stats, wall, notes, tuple(w.value_J_per_K for w in fleet.walls))
 
 

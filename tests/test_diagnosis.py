@@ -362,7 +362,8 @@ def test_every_default_candidate_has_a_hidden_mechanism_test():
     # the mechanisms left out of the defaults (opt-in: experiments/README.md says why)
     assert set(MECHANISMS) - set(DEFAULT_CANDIDATES) == {"surface_layer", "boundary_layer_stratification", "growing_layer",
                                                        "diffusive_layer", "two_node_wall", "saturated_boiling",
-                                                       "temperature_sensor_bias", "saturated_start"}
+                                                       "temperature_sensor_bias", "saturated_start",
+                                                       "unknown_wall_capacity"}
 
 
 def test_a_model_with_a_two_node_wall_is_not_extended_by_the_dry_wall_node():
@@ -422,6 +423,17 @@ def _check_found(d, mechanism: str, value: float) -> None:
 def test_diagnosis_finds_the_hidden_mechanism(case, mechanism, value, seed):
     d = diagnose([_data(case, mechanism, value, seed)])
     _check_found(d, mechanism, value)
+
+
+def test_once_the_time_budget_is_spent_no_candidate_is_refitted_and_the_verdict_still_comes():
+    """``refit_budget_s=0``: calibration and score tests run, no candidate is refitted, each says
+    why, and the verdict rests on the audit, which does not resolve the hidden 60 W (the refits
+    name it, ``test_diagnosis_finds_the_hidden_mechanism``)."""
+    d = diagnose([_data("case1", "heat_leak_vapor", 60.0, 1)], config=DiagnosisConfig(refit_budget_s=0.0))
+    assert not any(c.refit for c in d.ranking)
+    assert any("time budget of 0 s was spent" in r for c in d.ranking for r in c.reasons), \
+        [(c.mechanism, c.reasons) for c in d.ranking]
+    assert d.named is None and d.verdict.kind == "none", d.verdict.sentence
 
 
 @pytest.mark.parametrize("case,seed", [("case1", 11), pytest.param("case3", 12, marks=pytest.mark.slow),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tankode import get_case, simulate
-from tankode.diagnosis.audit import (AuditConfig, Estimate, Hypothesis, _metered, _name, _phases, _smooth,
+from tankode.diagnosis.audit import (AuditConfig, Estimate, Hypothesis, _kind, _metered, _name, _phases, _smooth,
                                      audit_run)
 from tankode.diagnosis.diagnose import Candidate, Thresholds
 from tankode.diagnosis.verdict import Inventory, audit_consistency, decide
@@ -68,6 +68,16 @@ def test_a_short_vent_merged_into_the_next_phase_is_still_metered_exactly():
     vent_energy = 0.01 * (4.0e5 * 100.0 + 100.0 * 100.0**2 / 2)  # integral of 0.01 h_v(t) over the vent
     np.testing.assert_allclose(met["E"], [0.0, -vent_energy + 50.0 * 300.0, -vent_energy + 50.0 * 600.0])
     np.testing.assert_allclose(met["Hv"][-1], 4.3e5 * 600.0)  # a leak's enthalpy: the integral of h_v
+
+
+def test_a_short_hold_merged_into_a_drain_is_labelled_by_the_drain():
+    """A phase is labelled by every operation in it, not by its first instant: 100 s of hold merged
+    into the drain after it is a drain phase."""
+    sched = Schedule.from_steps([(0.0, {"Q_aw_W": 50.0}), (100.0, {"mdot_l_out_kg_s": 0.3}),
+                                 (400.0, {"mdot_l_out_kg_s": 0.3, "slosh_amplitude_m": 0.01,
+                                          "slosh_frequency_Hz": 0.5})])
+    assert _kind(sched, 0.0, 600.0) == "drain, sloshing"
+    assert _kind(sched, 0.0, 100.0) == "hold"
 
 
 def test_the_inert_gas_column_is_the_share_of_the_gas_vented():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -199,3 +201,50 @@ def test_interrupted_training_resumes_to_the_same_mechanism_values(data, tmp_pat
     assert resumed.trained.values() == ref.trained.values() != START
     for (n, w), (_, w_ref) in zip(resumed.closure.state_dict().items(), ref.closure.state_dict().items()):
         assert torch.equal(w, w_ref), n
+
+
+def _unstated_wall_run():
+    """``_run`` with no wall heat capacity stated and 400 W entering the wall, so that it warms."""
+    import dataclasses
+
+    run = _run()
+    tank = dataclasses.replace(run.tank, wall_heat_capacity_J_per_K=None)
+    return dataclasses.replace(run, tank=tank, inputs=Schedule.from_steps([(0, {"Q_aw_W": 400.0})], t_end=300.0))
+
+
+def test_a_wall_no_one_states_is_learned_on_a_log_scale():
+    """A wall 40 times tankode's aluminium-shell estimate, in a run that states none: with the
+    default ``unknown_wall="trained"`` the assimilation adds the log factor and one window recovers
+    it within 1 % (the closure known); a run that states its wall, or ``unknown_wall="assumed"``,
+    trains none."""
+    import dataclasses
+    import math
+
+    from tankode.mechanisms import UNKNOWN_WALL_FACTOR_RANGE
+
+    run = _unstated_wall_run()
+    truth = (make_mechanism("unknown_wall_capacity", ln_factor=math.log(40.0)),)
+    (data,) = solution_to_runs(run, simulate(run, TRUTH, mechanisms=truth), noise="clean")
+    data = dataclasses.replace(data, tank=run.tank)  # the data state no wall either
+    config = AssimilationConfig.paper(window_s=1e9, mode="growing", iters=30, gradient=Backprop(),
+                                      unknown_wall="trained")
+    a = Assimilator([data], config, closure=TRUTH)
+    assert [m.id for m in a.trained.mechanisms] == ["unknown_wall_capacity"]
+    assert UNKNOWN_WALL_FACTOR_RANGE[0] < 40.0 < UNKNOWN_WALL_FACTOR_RANGE[1]
+    (report,) = a.run().reports
+    # the decade walk before the update (Assimilator._scan_unknown_wall), then L-BFGS
+    assert "heat capacity moved from 1 to 10 times" in report.note, report.note
+    assert math.exp(report.mechanisms["unknown_wall_capacity"]["ln_factor"]) == pytest.approx(40.0, rel=0.01)
+    assert not Assimilator([data], AssimilationConfig.paper(unknown_wall="assumed"), closure=TRUTH).trained.mechanisms
+    stated = Assimilator([_clean_run_with({})], AssimilationConfig.paper(unknown_wall="trained"), closure=TRUTH)
+    assert "unknown_wall_capacity" not in {m.id for m in stated.model.mechanisms}
+    # the learned factor does not multiply a wall a run states: simulate drops it, and says so
+    learned = simulate(_run(), TRUTH, mechanisms=truth)
+    assert torch.equal(learned.states, simulate(_run(), TRUTH).states)
+    assert any("is not applied: a run states its wall" in n for n in learned.notes), learned.notes
+    # a configuration saved before the option existed kept the shell's estimate
+    legacy = json.loads(AssimilationConfig().to_json())
+    del legacy["unknown_wall"]
+    assert AssimilationConfig.from_json(json.dumps(legacy)).unknown_wall == "assumed"
+    with pytest.raises(ValueError, match="unknown_wall"):
+        AssimilationConfig(unknown_wall="learned")

@@ -667,10 +667,13 @@ def _birge(chi2: float, dof: int) -> float:
     return max(1.0, math.sqrt(chi2 / dof))
 
 
-def _kind(u: np.ndarray) -> str:
-    parts = [name for name, on in (("vapour inflow", u[_IN["mdot_v_in_kg_s"]] > 0), ("vent", u[_IN["mdot_v_out_kg_s"]] > 0),
-                                    ("liquid inflow", u[_IN["mdot_l_in_kg_s"]] > 0), ("drain", u[_IN["mdot_l_out_kg_s"]] > 0),
-                                    ("sloshing", u[_IN["slosh_amplitude_m"]] > 0)) if on]
+def _kind(sched, a: float, b: float) -> str:
+    """The operations of the phase ``[a, b]`` (s), every one that runs in it: a short hold merged
+    into the drain after it (``_phases``) is a drain."""
+    us = [sched.at(t) for t in (a, *sched.breakpoints(a, b))]
+    parts = [name for name, key in (("vapour inflow", "mdot_v_in_kg_s"), ("vent", "mdot_v_out_kg_s"),
+                                    ("liquid inflow", "mdot_l_in_kg_s"), ("drain", "mdot_l_out_kg_s"),
+                                    ("sloshing", "slosh_amplitude_m")) if any(u[_IN[key]] > 0 for u in us)]
     return ", ".join(parts) or "hold"
 
 
@@ -840,7 +843,7 @@ def _audit_phase(run: Run, a: float, b: float, thermo: _Thermo, geometry, V_tank
     birge_e = _birge(chi_e, dof_e)
     heat_est = Estimate(float(ce[1]), math.hypot(float(math.sqrt(max(ve[1, 1], 0.0))) * birge_e, drift_W))
     inflow = met["in_M"][-1] / (b - a)
-    phase = PhaseAudit(a, b, _kind(sched.at(a)), mass_est, heat_est, float(inflow),
+    phase = PhaseAudit(a, b, _kind(sched, a, b), mass_est, heat_est, float(inflow),
                        float(hvs.mean()), float(hls.mean()), birge_m, birge_e)
     # The joint (mass, energy / H_REF) block, each part scaled by its line's Birge ratio.
     E_scale = birge_e / _H_REF

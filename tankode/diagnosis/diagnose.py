@@ -128,8 +128,10 @@ class Thresholds:
 # ``temperature_sensor_bias``: the inventory audit decides the liquid thermometer's offset (and
 # names it); as a dynamic candidate it would compete with every closure error in T_l.
 # ``saturated_start`` sets only the initial state of a run that starts from a quiescent tank.
+# ``unknown_wall_capacity`` learns a wall no one states; the audit reads such a wall where it can.
 OPT_IN: tuple[str, ...] = ("surface_layer", "boundary_layer_stratification", "growing_layer", "diffusive_layer",
-                           "two_node_wall", "saturated_boiling", "temperature_sensor_bias", "saturated_start")
+                           "two_node_wall", "saturated_boiling", "temperature_sensor_bias", "saturated_start",
+                           "unknown_wall_capacity")
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(m for m in MECHANISMS if m not in OPT_IN)
 
 
@@ -168,6 +170,12 @@ class DiagnosisConfig:
             observation (cases 1 and 3); on another simulator's tank at rest 6-10 (refitted,
             those candidates left 40-100 times the noise floor on the held-out data).
         audit: ``AuditConfig`` of the inventory audit that runs first (``audit.py``).
+        refit_budget_s: wall-clock seconds from the diagnosis's start after which no further
+            candidate is refitted (one under way finishes; those left say so in their reasons,
+            and the verdict rests on the audit and the refits made). Ten minutes: one hour of
+            one tank takes 6-64 s, and a 4-hour run of a 200 m3 sphere, whose every simulation
+            took 16 s, had spent 870 s on two refits of five. ``math.inf``: every refit, a
+            result that does not depend on the machine's speed.
         hold: coefficients (of ``h_vi``, ``h_li``, ``h_wv``, ``h_wl``) whose multiplier stays 1:
             the closure's correlation is trusted for them and not calibrated. For when the report
             says a mechanism's estimate trades off with a factor (the data fix only a combination
@@ -190,6 +198,7 @@ class DiagnosisConfig:
     hold: tuple[str, ...] = ()
     reachable: float = 4.0
     audit: AuditConfig = AuditConfig()
+    refit_budget_s: float = 600.0
 
     def __post_init__(self):
         unknown = set(self.candidates) - set(MECHANISMS)
@@ -199,6 +208,8 @@ class DiagnosisConfig:
             raise ValueError(f"refit_top must be >= 1 or None, got {self.refit_top}")
         if not self.block_s > 0:
             raise ValueError(f"block_s must be > 0 s, got {self.block_s}")
+        if not self.refit_budget_s >= 0:
+            raise ValueError(f"refit_budget_s must be >= 0 s (math.inf: no budget), got {self.refit_budget_s}")
         if not self.reachable > 0:
             raise ValueError(f"reachable must be > 0 (chi2 per observation), got {self.reachable}")
         closure_params(hold=self.hold)  # raises on a coefficient it does not know
@@ -553,6 +564,9 @@ def _search(problem: Problem, folds, base: Fit, base_held, config: DiagnosisConf
     fits: dict[str, tuple[Fit, np.ndarray]] = {}
     for cand, sc in zip(ranking, scores):
         why = _skip_refit(cand, sc, base, inv, config, sum(1 for c in ranking[:cand.score_rank - 1] if c.refit))
+        if not why and time.perf_counter() - start > config.refit_budget_s:
+            why = (f"not refitted: the diagnosis's time budget of {config.refit_budget_s:g} s was spent "
+                   "(DiagnosisConfig.refit_budget_s)")
         if why:
             cand.reasons = [why]
             continue

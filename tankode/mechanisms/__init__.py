@@ -20,14 +20,14 @@ from .sensors import InflowMeterBias, PressureSensorBias, TemperatureSensorBias
 from .stratification import ThermalStratification
 from .surface_layer import SurfaceLayer
 from .two_node_wall import TwoNodeWall
-from .wall_capacity import WallHeatCapacityError
+from .wall_capacity import UNKNOWN_WALL_FACTOR_RANGE, UnknownWallCapacity, WallHeatCapacityError, applied_to_walls
 
 MECHANISMS: dict[str, type[Mechanism]] = {
     m.id: m
     for m in (HeatLeakLiquid, HeatLeakVapor, HeatLeakWall, VaporLeak, LiquidLeak, PressureSensorBias,
               WallHeatCapacityError, NoncondensableGas, ThermalStratification, InflowMeterBias, DryWallHeating,
               SurfaceLayer, BoundaryLayerStratification, GrowingLayer, DiffusiveLayer, DryWallNode, TwoNodeWall,
-              SaturatedBoiling, TemperatureSensorBias, SaturatedStart)
+              SaturatedBoiling, TemperatureSensorBias, SaturatedStart, UnknownWallCapacity)
 }
 
 
@@ -58,5 +58,6 @@ __all__ = [
     "HeatLeakLiquid", "HeatLeakVapor", "HeatLeakWall", "VaporLeak", "LiquidLeak", "PressureSensorBias",
     "WallHeatCapacityError", "NoncondensableGas", "ThermalStratification", "InflowMeterBias", "DryWallHeating",
     "SurfaceLayer", "BoundaryLayerStratification", "GrowingLayer", "DiffusiveLayer", "DryWallNode", "TwoNodeWall",
-    "SaturatedBoiling", "TemperatureSensorBias", "SaturatedStart",
+    "SaturatedBoiling", "TemperatureSensorBias", "SaturatedStart", "UnknownWallCapacity", "UNKNOWN_WALL_FACTOR_RANGE",
+    "applied_to_walls",
 ]
